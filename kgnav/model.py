@@ -1,0 +1,528 @@
+"""The Abstract Model: a finite state machine grounded in perception, held as a NetworkX multi-digraph.
+
+Schema (version :data:`SCHEMA_VERSION`, DESIGN.md §3):
+
+============== ========================= ====================================================
+element        kind                      attributes
+============== ========================= ====================================================
+state node     ``kind="state"``          ``x, y, theta`` (model frame), ``episode``, ``step``,
+                                         ``features`` (float32 vector), ``origin``
+object node    ``kind="object"``         ``cls``, ``x, y, z`` (mean of observations),
+                                         ``n_obs``, ``n_views``, ``origin``
+transition     state → state, key=action ``kind="transition"``, ``count``
+sees edge      state → object, key=sees  ``kind="sees"``, ``u0, v0, u1, v1`` (bbox, px),
+                                         ``distance`` (m), ``pixels``, ``ox, oy, oz``
+                                         (this observation's position, model frame)
+graph          —                         ``kgnav_schema``, ``model_id``, ``feature_dim``,
+                                         ``extractor``, ``classes``, ``episodes``,
+                                         ``merged_from``, tolerances
+============== ========================= ====================================================
+
+``origin`` is ``"<model_id>/<node_id>"`` of the model that first recorded the node. Merging keys
+on it, so merging the same observations twice adds nothing (see :func:`kgnav.merge.merge`).
+
+>>> import numpy as np
+>>> from kgnav import AbstractModel, Detection
+>>> m = AbstractModel(feature_dim=4, model_id="demo")
+>>> f = np.array([1, 0, 0, 0], dtype=np.float32)
+>>> s0 = m.add_state(f, pose=(0, 0, 0), detections=[Detection("chair", (1.0, 0.0, 0.4))])
+>>> s1 = m.add_state(f[::-1].copy(), pose=(0.25, 0, 0))
+>>> m.add_transition(s0, "move_forward", s1)
+>>> m.n_states, m.n_objects, m.n_transitions
+(2, 1, 1)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+
+import networkx as nx
+import numpy as np
+
+from kgnav import se2
+from kgnav.classes import OBJECT_CLASSES
+from kgnav.errors import FeatureDimError, UnknownClassError, UnknownStateError
+
+SCHEMA_VERSION = 1
+
+#: The paper's action set; transitions are keyed by these names.
+ACTIONS: tuple[str, ...] = ("stop", "move_forward", "turn_left", "turn_right")
+
+SEES = "sees"
+
+
+@dataclass(frozen=True)
+class Detection:
+    """One object seen from a state: ``F_{s,c}`` in the paper.
+
+    ``position`` is in the model frame (bbox-centroid depth + pose); ``bbox`` is
+    ``(u0, v0, u1, v1)`` in pixels; ``distance`` is metres from the agent.
+    """
+
+    cls: str
+    position: tuple[float, float, float]
+    bbox: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    distance: float = 0.0
+    pixels: int = 0
+
+
+@dataclass(frozen=True)
+class ObjectInfo:
+    """A read-only view of an object node."""
+
+    id: str
+    cls: str
+    position: tuple[float, float, float]
+    n_views: int
+    n_obs: int
+
+
+@dataclass
+class _Index:
+    """Lookup structures derived from the graph, rebuilt after bulk changes."""
+
+    cells: dict[tuple[int, int], list[str]] = field(default_factory=dict)
+    object_cells: dict[tuple[str, int, int], list[str]] = field(default_factory=dict)
+    by_class: dict[str, list[str]] = field(default_factory=dict)
+    by_origin: dict[str, str] = field(default_factory=dict)
+
+
+def cosine_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """``1 - cos(a, b)``; two zero vectors are at distance 0, a zero and a non-zero at 1."""
+    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+    if na == 0.0 or nb == 0.0:
+        return 0.0 if na == nb else 1.0
+    return 1.0 - float(np.dot(a, b)) / (na * nb)
+
+
+class AbstractModel:
+    """An Abstract Model ``D = <S, A, delta>`` whose states carry features and object views.
+
+    Parameters
+    ----------
+    feature_dim:
+        Length of every state's feature vector ``F_s`` (2048 in the paper).
+    model_id:
+        Identifier used in the store and in provenance. Pass one for reproducible files;
+        by default a random hex id is drawn.
+    classes:
+        Object-class vocabulary; a detection of another class raises :class:`UnknownClassError`.
+    extractor:
+        Name of the feature extractor, recorded so models from different extractors are not mixed.
+    pose_tol, angle_tol, feature_tol:
+        A new state is "already present" when a state lies within ``pose_tol`` metres and
+        ``angle_tol`` radians and its features are within cosine distance ``feature_tol``.
+    object_radius:
+        Detections of a class within this distance (metres, in the floor plane) of an object of
+        the same class are views of that object.
+    """
+
+    def __init__(
+        self,
+        feature_dim: int = 2048,
+        *,
+        model_id: str | None = None,
+        classes: Sequence[str] = OBJECT_CLASSES,
+        extractor: str = "unspecified",
+        pose_tol: float = 0.05,
+        angle_tol: float = math.radians(2.0),
+        feature_tol: float = 1e-3,
+        object_radius: float = 0.5,
+    ):
+        if int(feature_dim) <= 0:
+            raise ValueError(f"feature_dim must be positive, got {feature_dim}")
+        classes = tuple(classes)
+        if not classes or any((not c) or ("," in c) for c in classes):
+            raise ValueError("classes must be non-empty names without commas")
+        self.graph = nx.MultiDiGraph()
+        self.graph.graph.update(
+            kgnav_schema=SCHEMA_VERSION,
+            model_id=model_id if model_id is not None else os.urandom(8).hex(),
+            feature_dim=int(feature_dim),
+            feature_dtype="float32",
+            extractor=str(extractor),
+            classes=",".join(classes),
+            episodes="[]",
+            merged_from="[]",
+            pose_tol=float(pose_tol),
+            angle_tol=float(angle_tol),
+            feature_tol=float(feature_tol),
+            object_radius=float(object_radius),
+        )
+        self._init_counters()
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def model_id(self) -> str:
+        return self.graph.graph["model_id"]
+
+    @model_id.setter
+    def model_id(self, value: str) -> None:
+        self.graph.graph["model_id"] = str(value)
+
+    @property
+    def feature_dim(self) -> int:
+        return int(self.graph.graph["feature_dim"])
+
+    @property
+    def classes(self) -> tuple[str, ...]:
+        return tuple(self.graph.graph["classes"].split(","))
+
+    @property
+    def extractor(self) -> str:
+        return self.graph.graph["extractor"]
+
+    @property
+    def episodes(self) -> list:
+        """Episode identifiers that contributed states, in order of first appearance."""
+        return json.loads(self.graph.graph["episodes"])
+
+    @property
+    def merged_from(self) -> list[str]:
+        """Ids of the models merged into this one (provenance)."""
+        return json.loads(self.graph.graph["merged_from"])
+
+    def _tol(self, name: str) -> float:
+        return float(self.graph.graph[name])
+
+    @property
+    def n_states(self) -> int:
+        return self._n_states
+
+    @property
+    def n_objects(self) -> int:
+        return self.graph.number_of_nodes() - self._n_states
+
+    @property
+    def n_transitions(self) -> int:
+        return sum(1 for *_, d in self.graph.edges(data="kind") if d == "transition")
+
+    def states(self) -> Iterator[str]:
+        """State ids in insertion order."""
+        return (n for n, k in self.graph.nodes(data="kind") if k == "state")
+
+    def objects(self) -> Iterator[str]:
+        """Object ids in insertion order."""
+        return (n for n, k in self.graph.nodes(data="kind") if k == "object")
+
+    def has_state(self, state: str) -> bool:
+        return self.graph.nodes.get(state, {}).get("kind") == "state"
+
+    def _check_state(self, state: str) -> dict:
+        data = self.graph.nodes.get(state)
+        if data is None or data.get("kind") != "state":
+            raise UnknownStateError(state, self.model_id)
+        return data
+
+    def pose(self, state: str) -> se2.Pose:
+        """The ``(x, y, theta)`` of a state in the model frame."""
+        d = self._check_state(state)
+        return (d["x"], d["y"], d["theta"])
+
+    def features(self, state: str) -> np.ndarray:
+        """The state's feature vector (read-only float32)."""
+        return self._check_state(state)["features"]
+
+    def state_features(self) -> tuple[list[str], np.ndarray]:
+        """All state ids and their features as an ``(n_states, feature_dim)`` float32 matrix."""
+        ids = list(self.states())
+        if not ids:
+            return ids, np.zeros((0, self.feature_dim), dtype=np.float32)
+        return ids, np.stack([self.graph.nodes[s]["features"] for s in ids])
+
+    def object_info(self, obj: str) -> ObjectInfo:
+        d = self.graph.nodes[obj]
+        return ObjectInfo(obj, d["cls"], (d["x"], d["y"], d["z"]), d["n_views"], d["n_obs"])
+
+    def check_class(self, cls: str) -> str:
+        if cls not in self.classes:
+            raise UnknownClassError(cls, self.classes)
+        return cls
+
+    # ------------------------------------------------------------------ building
+    def _init_counters(self) -> None:
+        """Derive id counters and indexes from the graph (after construction, load or transform)."""
+        self._n_states = 0
+        next_s = next_o = 0
+        for n, k in self.graph.nodes(data="kind"):
+            num = int(n[1:]) if n[1:].isdigit() else -1
+            if k == "state":
+                self._n_states += 1
+                next_s = max(next_s, num + 1)
+            else:
+                next_o = max(next_o, num + 1)
+        self._next_state, self._next_object = next_s, next_o
+        self._index = _Index()
+        for n, d in self.graph.nodes(data=True):
+            if d["kind"] == "state":
+                self._index.cells.setdefault(self._cell(d["x"], d["y"]), []).append(n)
+            else:
+                self._index.by_class.setdefault(d["cls"], []).append(n)
+                self._index.object_cells.setdefault(self._object_cell(n), []).append(n)
+            self._index.by_origin[d["origin"]] = n
+
+    def _cell(self, x: float, y: float) -> tuple[int, int]:
+        tol = self._tol("pose_tol")
+        return (math.floor(x / tol), math.floor(y / tol)) if tol > 0 else (0, 0)
+
+    def _object_cell(self, oid: str) -> tuple[str, int, int]:
+        d = self.graph.nodes[oid]
+        r = self._tol("object_radius")
+        return (d["cls"], math.floor(d["x"] / r), math.floor(d["y"] / r)) if r > 0 else (d["cls"], 0, 0)
+
+    def _validate_features(self, features) -> np.ndarray:
+        f = np.asarray(features)
+        if f.ndim != 1 or f.shape[0] != self.feature_dim:
+            raise FeatureDimError(tuple(f.shape), self.feature_dim)
+        f = np.array(f, dtype=np.float32, copy=True)
+        if not np.all(np.isfinite(f)):
+            raise ValueError("feature vector contains NaN or infinite values")
+        f.setflags(write=False)
+        return f
+
+    def find_state(self, pose, features) -> str | None:
+        """An existing state coincident with ``pose``/``features`` (within the tolerances), else None."""
+        x, y, theta = se2.as_pose(pose)
+        f = features if isinstance(features, np.ndarray) else np.asarray(features, np.float32)
+        cx, cy = self._cell(x, y)
+        pose_tol, angle_tol = self._tol("pose_tol"), self._tol("angle_tol")
+        feature_tol = self._tol("feature_tol")
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                for s in self._index.cells.get((cx + dx, cy + dy), ()):
+                    d = self.graph.nodes[s]
+                    if (
+                        math.hypot(d["x"] - x, d["y"] - y) <= pose_tol
+                        and se2.angle_diff(d["theta"], theta) <= angle_tol
+                        and cosine_distance(d["features"], f) <= feature_tol
+                    ):
+                        return s
+        return None
+
+    def add_state(
+        self,
+        features,
+        pose,
+        detections: Iterable[Detection] = (),
+        *,
+        episode: int = 0,
+        step: int = 0,
+    ) -> str:
+        """Add the state ``s = <F_s, C_s, {F_s,c}>`` and return its id.
+
+        If a coincident state is already present (see the class tolerances) its id is returned and
+        the model is unchanged: the caller then only adds the transition, as the paper does.
+        """
+        f = self._validate_features(features)
+        pose = se2.as_pose(pose)
+        detections = list(detections)
+        for det in detections:
+            self.check_class(det.cls)
+        existing = self.find_state(pose, f)
+        if existing is not None:
+            return existing
+        sid = self._new_state_node(pose, f, episode=episode, step=step, origin=None)
+        for det in detections:
+            self._add_view(
+                sid,
+                det.cls,
+                tuple(float(v) for v in det.position),
+                dict(
+                    u0=float(det.bbox[0]),
+                    v0=float(det.bbox[1]),
+                    u1=float(det.bbox[2]),
+                    v1=float(det.bbox[3]),
+                    distance=float(det.distance),
+                    pixels=int(det.pixels),
+                ),
+            )
+        return sid
+
+    def _new_state_node(self, pose, f, *, episode, step, origin) -> str:
+        sid = f"s{self._next_state}"
+        self._next_state += 1
+        x, y, theta = (float(v) for v in pose)
+        self.graph.add_node(
+            sid,
+            kind="state",
+            x=x,
+            y=y,
+            theta=se2.wrap_angle(theta),
+            episode=int(episode),
+            step=int(step),
+            features=f,
+            origin=origin or f"{self.model_id}/{sid}",
+        )
+        self._n_states += 1
+        self._index.cells.setdefault(self._cell(x, y), []).append(sid)
+        self._index.by_origin[self.graph.nodes[sid]["origin"]] = sid
+        episodes = self.episodes
+        if episode not in episodes:
+            episodes.append(episode)
+            self.graph.graph["episodes"] = json.dumps(episodes)
+        return sid
+
+    def _nearest_object(self, cls: str, x: float, y: float) -> str | None:
+        r = self._tol("object_radius")
+        best, best_d = None, r
+        cx, cy = (math.floor(x / r), math.floor(y / r)) if r > 0 else (0, 0)
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                for o in self._index.object_cells.get((cls, cx + dx, cy + dy), ()):
+                    d = self.graph.nodes[o]
+                    dist = math.hypot(d["x"] - x, d["y"] - y)
+                    if dist < best_d or (dist == best_d and best is None):
+                        best, best_d = o, dist
+        return best
+
+    def _new_object_node(self, cls, xyz, n_obs: int, origin: str | None) -> str:
+        oid = f"o{self._next_object}"
+        self._next_object += 1
+        self.graph.add_node(
+            oid,
+            kind="object",
+            cls=cls,
+            x=float(xyz[0]),
+            y=float(xyz[1]),
+            z=float(xyz[2]),
+            n_obs=int(n_obs),
+            n_views=0,
+            origin=origin or f"{self.model_id}/{oid}",
+        )
+        self._index.by_class.setdefault(cls, []).append(oid)
+        self._index.object_cells.setdefault(self._object_cell(oid), []).append(oid)
+        self._index.by_origin[self.graph.nodes[oid]["origin"]] = oid
+        return oid
+
+    def _absorb_into_object(self, oid: str, xyz, n_obs: int) -> None:
+        """Fold ``n_obs`` observations with mean ``xyz`` into the object's running mean."""
+        d = self.graph.nodes[oid]
+        old_cell = self._object_cell(oid)
+        total = d["n_obs"] + n_obs
+        for axis, v in zip("xyz", xyz, strict=True):
+            d[axis] = float(d[axis] + (v - d[axis]) * n_obs / total)
+        d["n_obs"] = total
+        new_cell = self._object_cell(oid)
+        if new_cell != old_cell:
+            self._index.object_cells[old_cell].remove(oid)
+            self._index.object_cells.setdefault(new_cell, []).append(oid)
+
+    def _link_view(self, sid: str, oid: str, view: dict) -> None:
+        if not self.graph.has_edge(sid, oid, SEES):
+            self.graph.add_edge(sid, oid, key=SEES, kind="sees", **view)
+            self.graph.nodes[oid]["n_views"] += 1
+
+    def _add_view(self, sid: str, cls: str, xyz, view: dict) -> str:
+        oid = self._nearest_object(cls, xyz[0], xyz[1])
+        if oid is None:
+            oid = self._new_object_node(cls, xyz, 1, None)
+        else:
+            self._absorb_into_object(oid, xyz, 1)
+        self._link_view(sid, oid, dict(view, ox=xyz[0], oy=xyz[1], oz=xyz[2]))
+        return oid
+
+    def add_transition(self, src: str, action: str, dst: str, count: int = 1) -> None:
+        """Record ``delta(src, action) = dst``; repeated transitions increase ``count``."""
+        self._check_state(src)
+        self._check_state(dst)
+        if not isinstance(action, str) or not action:
+            raise ValueError(f"action must be a non-empty string, got {action!r}")
+        if self.graph.has_edge(src, dst, action):
+            self.graph.edges[src, dst, action]["count"] += int(count)
+        else:
+            self.graph.add_edge(src, dst, key=action, kind="transition", count=int(count))
+
+    # ------------------------------------------------------------------ frames
+    def transform(self, T) -> AbstractModel:
+        """Apply the SE(2) transform ``T`` (``(x, y, theta)`` or 3×3) to every pose and position.
+
+        Modifies the model in place and returns it.
+        """
+        T = se2.as_pose(T)
+        for _, d in self.graph.nodes(data=True):
+            if d["kind"] == "state":
+                d["x"], d["y"], d["theta"] = se2.compose(T, (d["x"], d["y"], d["theta"]))
+            else:
+                d["x"], d["y"] = se2.apply_to_point(T, d["x"], d["y"])
+        for *_, d in self.graph.edges(data=True):
+            if d["kind"] == "sees":
+                d["ox"], d["oy"] = se2.apply_to_point(T, d["ox"], d["oy"])
+        self._init_counters()
+        return self
+
+    # ------------------------------------------------------------------ io & comparison
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Write the model to ``path`` as GraphML, atomically (see :mod:`kgnav.graphml`)."""
+        from kgnav.graphml import write_model
+
+        write_model(self, path)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> AbstractModel:
+        """Read a model written by :meth:`save`; raises :class:`kgnav.errors.ModelFileError`."""
+        from kgnav.graphml import read_model
+
+        return read_model(path)
+
+    @classmethod
+    def from_graph(cls, graph: nx.MultiDiGraph) -> AbstractModel:
+        """Wrap a graph that already follows the schema (no validation; see :mod:`kgnav.graphml`)."""
+        m = cls.__new__(cls)
+        m.graph = graph
+        m._init_counters()
+        return m
+
+    def copy(self) -> AbstractModel:
+        """A deep copy (feature arrays are shared: they are read-only)."""
+        return AbstractModel.from_graph(self.graph.copy())
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, AbstractModel):
+            return NotImplemented
+        return graphs_equal(self.graph, other.graph)
+
+    __hash__ = None  # mutable
+
+    def __repr__(self) -> str:
+        return (
+            f"AbstractModel(model_id={self.model_id!r}, states={self.n_states}, "
+            f"objects={self.n_objects}, transitions={self.n_transitions}, "
+            f"feature_dim={self.feature_dim})"
+        )
+
+
+def _attrs_equal(a: dict, b: dict) -> bool:
+    if a.keys() != b.keys():
+        return False
+    for k, va in a.items():
+        vb = b[k]
+        if isinstance(va, np.ndarray) or isinstance(vb, np.ndarray):
+            if not (
+                isinstance(va, np.ndarray)
+                and isinstance(vb, np.ndarray)
+                and va.dtype == vb.dtype
+                and va.tobytes() == vb.tobytes()
+            ):
+                return False
+        elif type(va) is not type(vb) or va != vb:
+            return False
+    return True
+
+
+def graphs_equal(g: nx.MultiDiGraph, h: nx.MultiDiGraph) -> bool:
+    """Exact equality of two model graphs: attributes, node ids, edge keys, features bit for bit."""
+    if not _attrs_equal(g.graph, h.graph) or g.number_of_nodes() != h.number_of_nodes():
+        return False
+    for n, d in g.nodes(data=True):
+        if n not in h or not _attrs_equal(d, h.nodes[n]):
+            return False
+    if g.number_of_edges() != h.number_of_edges():
+        return False
+    for u, v, k, d in g.edges(keys=True, data=True):
+        if not h.has_edge(u, v, k) or not _attrs_equal(d, h.edges[u, v, k]):
+            return False
+    return True
