@@ -248,7 +248,7 @@ def read_model(path: str | os.PathLike[str]) -> AbstractModel:
     try:
         g = parse_graphml(path)
     except etree.XMLSyntaxError as exc:
-        raise ModelFileError(path, f"not valid XML ({exc})") from None
+        raise ModelFileError(path, f"not valid XML ({exc.msg})") from None
     except (ValueError, TypeError) as exc:
         raise ModelFileError(path, f"not a readable GraphML file ({exc})") from None
     except OSError as exc:

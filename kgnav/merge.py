@@ -8,11 +8,12 @@ The source is mapped into the target frame by ``T = pose(target_state) ∘ pose(
 * objects are re-associated: a source object joins the nearest target object of its class within
   ``object_radius`` (positions averaged by observation count, views counted per distinct state);
 * transitions are unioned, counts added;
-* provenance is kept: every node keeps the ``origin`` of the model that first recorded it, and the
-  result lists the merged models in ``merged_from``.
+* provenance is kept: every node lists in ``origin`` the recorded nodes (``model_id/node_id``)
+  folded into it, and the result lists the merged models in ``merged_from``.
 
 Nodes are matched by ``origin`` first, so merging observations that are already in the target adds
-nothing: merging a model with itself through an identity anchor returns an equal model.
+nothing: merging a model with itself through an identity anchor returns an equal model, and so
+does merging a model again into the result of an earlier merge.
 
 >>> import numpy as np
 >>> from kgnav import AbstractModel
@@ -98,15 +99,14 @@ def merge(
         out.graph.graph["classes"] = ",".join(out.classes + tuple(extra))
 
     g = out.graph
-    by_origin = out._index.by_origin
     node_map: dict[str, str] = {}
     same_record: set[str] = set()  # source states that are the very observation already in target
 
     for s, d in src.graph.nodes(data=True):
         if d["kind"] != "state":
             continue
-        hit = by_origin.get(d["origin"])
-        if hit is not None and g.nodes[hit]["kind"] == "state":
+        hit = out.known_node(d["origin"])
+        if hit is not None:
             same_record.add(s)
         else:
             pose = (d["x"], d["y"], d["theta"])
@@ -115,19 +115,21 @@ def merge(
                 hit = out._new_state_node(
                     pose, d["features"], episode=d["episode"], step=d["step"], origin=d["origin"]
                 )
+        out._add_origins(hit, d["origin"])
         node_map[s] = hit
 
     for o, d in src.graph.nodes(data=True):
         if d["kind"] != "object":
             continue
-        hit = by_origin.get(d["origin"])
-        if hit is None or g.nodes[hit]["kind"] != "object":
+        hit = out.known_node(d["origin"])
+        if hit is None:
             xyz = (d["x"], d["y"], d["z"])
             hit = out._nearest_object(d["cls"], d["x"], d["y"])
             if hit is None:
                 hit = out._new_object_node(d["cls"], xyz, d["n_obs"], d["origin"])
             else:
                 out._absorb_into_object(hit, xyz, d["n_obs"])
+        out._add_origins(hit, d["origin"])
         node_map[o] = hit
 
     for u, v, k, d in src.graph.edges(keys=True, data=True):

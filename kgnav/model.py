@@ -18,8 +18,9 @@ graph          —                         ``kgnav_schema``, ``model_id``, ``fea
                                          ``merged_from``, tolerances
 ============== ========================= ====================================================
 
-``origin`` is ``"<model_id>/<node_id>"`` of the model that first recorded the node. Merging keys
-on it, so merging the same observations twice adds nothing (see :func:`kgnav.merge.merge`).
+``origin`` is provenance: the space-separated ``"<model_id>/<node_id>"`` of every recorded node
+folded into this one, the creator first. Merging keys on it, so merging observations that are
+already in a model adds nothing (see :func:`kgnav.merge.merge`).
 
 >>> import numpy as np
 >>> from kgnav import AbstractModel, Detection
@@ -37,6 +38,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 
@@ -53,6 +55,9 @@ SCHEMA_VERSION = 1
 ACTIONS: tuple[str, ...] = ("stop", "move_forward", "turn_left", "turn_right")
 
 SEES = "sees"
+
+#: Model ids name files in a store and appear in provenance: keep them plain.
+SAFE_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,127}$")
 
 
 @dataclass(frozen=True)
@@ -135,6 +140,10 @@ class AbstractModel:
     ):
         if int(feature_dim) <= 0:
             raise ValueError(f"feature_dim must be positive, got {feature_dim}")
+        if model_id is not None and not SAFE_ID.match(str(model_id)):
+            raise ValueError(
+                f"invalid model id {model_id!r}: use letters, digits and _ . + - (max 128)"
+            )
         classes = tuple(classes)
         if not classes or any((not c) or ("," in c) for c in classes):
             raise ValueError("classes must be non-empty names without commas")
@@ -162,6 +171,8 @@ class AbstractModel:
 
     @model_id.setter
     def model_id(self, value: str) -> None:
+        if not SAFE_ID.match(str(value)):
+            raise ValueError(f"invalid model id {value!r}: use letters, digits and _ . + -")
         self.graph.graph["model_id"] = str(value)
 
     @property
@@ -263,11 +274,33 @@ class AbstractModel:
             else:
                 self._index.by_class.setdefault(d["cls"], []).append(n)
                 self._index.object_cells.setdefault(self._object_cell(n), []).append(n)
-            self._index.by_origin[d["origin"]] = n
+            for origin in d["origin"].split():
+                self._index.by_origin[origin] = n
 
     def _cell(self, x: float, y: float) -> tuple[int, int]:
         tol = self._tol("pose_tol")
         return (math.floor(x / tol), math.floor(y / tol)) if tol > 0 else (0, 0)
+
+    def origins(self, node: str) -> list[str]:
+        """Provenance of a node: ``model_id/node_id`` of every recorded node folded into it."""
+        return self.graph.nodes[node]["origin"].split()
+
+    def known_node(self, origins: str) -> str | None:
+        """The node that already holds any of the space-separated ``origins``, if one does."""
+        for origin in origins.split():
+            hit = self._index.by_origin.get(origin)
+            if hit is not None:
+                return hit
+        return None
+
+    def _add_origins(self, node: str, origins: str) -> None:
+        d = self.graph.nodes[node]
+        have = set(d["origin"].split())
+        new = [o for o in origins.split() if o not in have]
+        if new:
+            d["origin"] = " ".join([d["origin"], *new])
+            for o in new:
+                self._index.by_origin[o] = node
 
     def _object_cell(self, oid: str) -> tuple[str, int, int]:
         d = self.graph.nodes[oid]
@@ -359,7 +392,8 @@ class AbstractModel:
         )
         self._n_states += 1
         self._index.cells.setdefault(self._cell(x, y), []).append(sid)
-        self._index.by_origin[self.graph.nodes[sid]["origin"]] = sid
+        for o in self.graph.nodes[sid]["origin"].split():
+            self._index.by_origin[o] = sid
         episodes = self.episodes
         if episode not in episodes:
             episodes.append(episode)
@@ -395,7 +429,8 @@ class AbstractModel:
         )
         self._index.by_class.setdefault(cls, []).append(oid)
         self._index.object_cells.setdefault(self._object_cell(oid), []).append(oid)
-        self._index.by_origin[self.graph.nodes[oid]["origin"]] = oid
+        for o in self.graph.nodes[oid]["origin"].split():
+            self._index.by_origin[o] = oid
         return oid
 
     def _absorb_into_object(self, oid: str, xyz, n_obs: int) -> None:

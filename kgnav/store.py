@@ -20,7 +20,6 @@ True
 from __future__ import annotations
 
 import os
-import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,9 +28,8 @@ from filelock import FileLock, Timeout
 
 from kgnav.errors import ModelFileError, StoreError
 from kgnav.graphml import read_model, write_model
-from kgnav.model import AbstractModel
+from kgnav.model import SAFE_ID, AbstractModel
 
-_SAFE_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,127}$")
 
 
 @dataclass(frozen=True)
@@ -71,7 +69,7 @@ class ModelStore:
     # ------------------------------------------------------------------ naming
     def path_of(self, model_id: str) -> Path:
         """The file that holds ``model_id``; the id must be a plain file-name stem."""
-        if not isinstance(model_id, str) or not _SAFE_ID.match(model_id):
+        if not isinstance(model_id, str) or not SAFE_ID.match(model_id):
             raise StoreError(
                 f"invalid model id {model_id!r}: use letters, digits and _ . + - (max 128)"
             )

@@ -137,8 +137,8 @@ class SyntheticWorld:
     def walk(self, steps: int, seed: int = 0, start: se2.Pose | None = None):
         """A random walk: list of ``(action, world_pose)`` with the pose after each action.
 
-        The first entry is ``(None, start)``. Forward moves that would leave the floor are
-        collisions: the pose stays.
+        The first entry is ``(None, start)``. Where a forward move would leave the floor the
+        walker turns left instead, so every recorded action did what its name says.
         """
         rng = np.random.default_rng(seed)
         pose = start if start is not None else self.start_pose(rng)
@@ -150,8 +150,8 @@ class SyntheticWorld:
                 nx_, ny_ = x + FORWARD_M * math.cos(th), y + FORWARD_M * math.sin(th)
                 if self._free(nx_, ny_):
                     pose = (nx_, ny_, th)
-                else:  # turn away from the wall next time
-                    pose = (x, y, se2.wrap_angle(th + 3 * TURN_RAD))
+                else:
+                    pose = (x, y, se2.wrap_angle(th + TURN_RAD))
                     action = "turn_left"
             else:
                 sign = 1.0 if action == "turn_left" else -1.0

@@ -1,0 +1,311 @@
+"""The ``kgnav`` command line: inspect, merge, query and export Abstract Models; list a store.
+
+Exit status: 0 on success, 1 for bad data (a corrupt file, an unknown state or class), 2 for bad
+usage (a missing or malformed argument). Either error is one line on stderr naming the problem.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.table import Table
+
+from kgnav import query
+from kgnav.errors import KgnavError
+from kgnav.graphml import read_model
+from kgnav.merge import best_anchor, merge
+from kgnav.model import AbstractModel
+from kgnav.store import ModelStore
+
+out = Console(highlight=False, soft_wrap=True)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="kgnav")
+def app() -> None:
+    """Reusable Abstract Models for Object Goal Navigation."""
+
+
+@app.group("store")
+def store_app() -> None:
+    """Work with a directory of models."""
+
+
+class DataError(KgnavError):
+    """A KgnavError already prefixed with the file it concerns."""
+
+
+def _load(path: Path) -> AbstractModel:
+    return read_model(path)
+
+
+def _about(path: Path, exc: KgnavError) -> DataError:
+    msg = str(exc)
+    return DataError(msg if str(path) in msg else f"{path}: {msg}")
+
+
+def _emit_json(obj) -> None:
+    sys.stdout.write(json.dumps(obj, indent=2, sort_keys=False) + "\n")
+
+
+def _parse_xy(ctx, param, value: str | None) -> tuple[float, float] | None:
+    if value is None:
+        return None
+    try:
+        x, y = (float(v) for v in value.split(","))
+    except ValueError:
+        raise click.BadParameter(f"expected X,Y in metres, got {value!r}") from None
+    return (x, y)
+
+
+def _parse_anchor(ctx, param, value: str) -> str | tuple[str, str]:
+    if value == "auto":
+        return value
+    parts = value.split(":")
+    if len(parts) != 2 or not all(parts):
+        raise click.BadParameter(f"expected 'auto' or TARGET_STATE:SOURCE_STATE, got {value!r}")
+    return (parts[0], parts[1])
+
+
+_FILE = click.Path(dir_okay=False, path_type=Path)
+_JSON = click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+
+
+@app.command()
+@click.argument("file", type=_FILE)
+@_JSON
+def inspect(file: Path, as_json: bool) -> None:
+    """Summarise a model: sizes, frame extent, episodes, provenance, class inventory."""
+    info = query.summary(_load(file))
+    if as_json:
+        _emit_json(info)
+        return
+    out.print(f"[bold]{file}[/bold]  model [cyan]{info['model_id']}[/cyan]")
+    for key in ("schema_version", "feature_dim", "extractor", "states", "objects", "transitions",
+                "views"):
+        out.print(f"  {key:<15}{info[key]}")
+    out.print(f"  {'actions':<15}{info['actions']}")
+    out.print(f"  {'episodes':<15}{info['episodes']}")
+    out.print(f"  {'merged_from':<15}{info['merged_from']}")
+    if info["extent"]:
+        ex = info["extent"]
+        out.print(
+            f"  {'extent':<15}x {ex['x'][0]:.2f}..{ex['x'][1]:.2f} m, "
+            f"y {ex['y'][0]:.2f}..{ex['y'][1]:.2f} m"
+        )
+    table = Table("class", "objects", "views", "max views", title="class inventory")
+    for cls, c in info["classes"].items():
+        table.add_row(cls, str(c["objects"]), str(c["views"]), str(c["max_views"]))
+    out.print(table)
+
+
+@app.command("merge")
+@click.argument("target", type=_FILE)
+@click.argument("source", type=_FILE)
+@click.option("-o", "--output", type=_FILE, required=True, help="Where to write the result.")
+@click.option(
+    "--anchor",
+    default="auto",
+    show_default=True,
+    callback=_parse_anchor,
+    help="'auto' (the closest feature pair) or TARGET_STATE:SOURCE_STATE.",
+)
+def merge_cmd(target: Path, source: Path, output: Path, anchor) -> None:
+    """Merge SOURCE into TARGET through an anchor pair of matching states.
+
+    The result keeps TARGET's frame and id; SOURCE is mapped by
+    T = pose(target_state) o pose(source_state)^-1.
+    """
+    a, b = _load(target), _load(source)
+    if anchor == "auto":
+        ta, sb, dist = best_anchor(a, b)
+        note = f"auto anchor {ta}:{sb} (cosine distance {dist:.4f})"
+    else:
+        ta, sb = anchor
+        for path, model, state in ((target, a, ta), (source, b, sb)):
+            if not model.has_state(state):
+                raise DataError(f"{path}: no state {state!r}")
+        note = f"anchor {ta}:{sb}"
+    merged = merge(a, b, anchor=(ta, sb))
+    merged.save(output)
+    out.print(
+        f"merged {source} into {target} with {note}: {merged.n_states} states, "
+        f"{merged.n_objects} objects -> {output}"
+    )
+
+
+@app.command("query")
+@click.argument("file", type=_FILE)
+@click.option("--goal", required=True, help="Goal object class, e.g. chair.")
+@click.option(
+    "--near",
+    callback=_parse_xy,
+    help="X,Y position (model frame, metres) to pick the closest goal from [default: 0,0].",
+)
+@click.option(
+    "--top", default=5, show_default=True, type=click.IntRange(min=1),
+    help="How many most-seen objects to consider.",
+)
+@_JSON
+def query_cmd(file: Path, goal: str, near, top: int, as_json: bool) -> None:
+    """The goal point for a class, as the paper picks it, and the visibility ranking."""
+    xy = near or (0.0, 0.0)
+    model = _load(file)
+    try:
+        ranked = query.ranked_objects(model, goal)
+        chosen = query.goal_point(model, goal, near=xy, top_k=top)
+    except KgnavError as exc:
+        raise _about(file, exc) from None
+    if as_json:
+        _emit_json(
+            {
+                "model_id": model.model_id,
+                "goal": goal,
+                "near": list(xy),
+                "goal_point": None if chosen is None else _obj_json(chosen),
+                "ranking": [_obj_json(o) for o in ranked],
+            }
+        )
+        return
+    if chosen is None:
+        out.print(f"{file}: no {goal} in model {model.model_id}")
+        return
+    x, y, z = chosen.position
+    out.print(
+        f"goal {goal}: object {chosen.id} at ({x:.2f}, {y:.2f}, {z:.2f}), "
+        f"seen from {chosen.n_views} states"
+    )
+    table = Table("rank", "object", "x", "y", "views", title=f"{goal} by visibility")
+    for i, o in enumerate(ranked, 1):
+        table.add_row(str(i), o.id, f"{o.position[0]:.2f}", f"{o.position[1]:.2f}", str(o.n_views))
+    out.print(table)
+
+
+def _obj_json(o) -> dict:
+    return {"id": o.id, "cls": o.cls, "position": list(o.position), "n_views": o.n_views,
+            "n_obs": o.n_obs}
+
+
+@app.command("export")
+@click.argument("file", type=_FILE)
+@click.option("--html", type=_FILE, required=True, help="Where to write the HTML page.")
+def export_cmd(file: Path, html: Path) -> None:
+    """Write an interactive HTML floor-plan view of a model (works offline)."""
+    from kgnav.export_html import export_html
+
+    path = export_html(_load(file), html)
+    out.print(f"wrote {path}")
+
+
+@store_app.command("ls")
+@click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
+@_JSON
+def store_ls(directory: Path, as_json: bool) -> None:
+    """List the models of a store; unreadable files are reported on stderr and skipped."""
+    _list_store(directory, as_json)
+
+
+def _list_store(directory: Path, as_json: bool) -> None:
+    if not directory.is_dir():
+        raise DataError(f"{directory}: not a directory")
+    models, problems = ModelStore(directory).load_all()
+    for p in problems:
+        click.echo(f"kgnav: warning: skipped {p}", err=True)
+    rows = [
+        {
+            "model_id": m.model_id,
+            "states": m.n_states,
+            "objects": m.n_objects,
+            "transitions": m.n_transitions,
+            "episodes": len(m.episodes),
+            "merged_from": m.merged_from,
+        }
+        for m in models.values()
+    ]
+    if as_json:
+        _emit_json({"models": rows, "skipped": [{"path": p.path, "reason": p.reason}
+                                                 for p in problems]})
+        return
+    table = Table("model", "states", "objects", "transitions", "episodes", "merged from",
+                  title=str(directory))
+    for r in rows:
+        table.add_row(r["model_id"], str(r["states"]), str(r["objects"]), str(r["transitions"]),
+                      str(r["episodes"]), ", ".join(r["merged_from"]))
+    out.print(table)
+
+
+@app.command()
+@click.option(
+    "--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+    default=Path("export/demo"), show_default=True, help="Where the memory and pages go.",
+)
+@click.option("--worlds", default=3, show_default=True, type=click.IntRange(min=1),
+              help="Synthetic environments.")
+@click.option("--episodes", default=3, show_default=True, type=click.IntRange(min=1),
+              help="Episodes per environment.")
+@click.option("--steps", default=200, show_default=True, type=click.IntRange(min=1),
+              help="Actions per episode.")
+@click.option("--seed", default=0, show_default=True, help="Seed of the worlds and walks.")
+def demo(out_dir: Path, worlds: int, episodes: int, steps: int, seed: int) -> None:
+    """Build a small memory on synthetic worlds, inspect it and export every model to HTML."""
+    from rich.progress import Progress
+
+    from kgnav.demo import build_demo_memory
+    from kgnav.export_html import export_html
+
+    store_dir = out_dir / "memory"
+    if store_dir.exists() and any(store_dir.iterdir()):
+        raise DataError(f"{store_dir}: already holds a memory; remove it or choose another --out")
+    with Progress(transient=True) as bar:
+        task = bar.add_task("exploring", total=worlds * episodes)
+        rows = build_demo_memory(
+            store_dir, worlds=worlds, episodes=episodes, steps=steps, seed=seed,
+            progress=lambda done, total: bar.update(task, completed=done),
+        )
+    table = Table("world", "episode", "relocated", "at step", "distance", "model", "states",
+                  "objects", title="episodes")
+    for r in rows:
+        table.add_row(str(r.world), str(r.episode), "yes" if r.relocated else "no",
+                      "" if r.match_step is None else str(r.match_step),
+                      "" if r.match_distance is None else f"{r.match_distance:.3f}",
+                      r.model_id, str(r.states), str(r.objects))
+    out.print(table)
+    _list_store(store_dir, as_json=False)
+    models, _ = ModelStore(store_dir).load_all()
+    for model_id, model in models.items():
+        page = export_html(model, out_dir / "html" / f"{model_id}.html")
+        goal = query.goal_point(model, "chair")
+        where = "none seen" if goal is None else f"{goal.id} at ({goal.position[0]:.2f}, " \
+            f"{goal.position[1]:.2f}), {goal.n_views} views"
+        out.print(f"{model_id}: goal 'chair' -> {where}; page {page}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point: run the CLI, mapping errors to one stderr line and an exit status."""
+    try:
+        rv = app.main(args=argv, prog_name="kgnav", standalone_mode=False)
+    except click.exceptions.NoArgsIsHelpError as exc:
+        click.echo(exc.ctx.get_help() if exc.ctx else exc.format_message())
+        sys.exit(0)
+    except click.UsageError as exc:
+        where = f" (kgnav {exc.ctx.command_path.split(' ', 1)[1]})" if exc.ctx and " " in \
+            exc.ctx.command_path else ""
+        click.echo(f"kgnav: usage error{where}: {exc.format_message()}", err=True)
+        sys.exit(2)
+    except KgnavError as exc:
+        click.echo(f"kgnav: error: {exc}", err=True)
+        sys.exit(1)
+    except click.exceptions.Abort:
+        click.echo("kgnav: aborted", err=True)
+        sys.exit(130)
+    except click.exceptions.Exit as exc:
+        sys.exit(exc.exit_code)
+    sys.exit(rv if isinstance(rv, int) else 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,37 @@
+"""Shared fixtures: small seeded synthetic models (64-d features keep the suite fast)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kgnav import AbstractModel, Detection
+from kgnav.synthetic import SyntheticWorld
+
+DIM = 64
+
+
+@pytest.fixture(scope="session")
+def world() -> SyntheticWorld:
+    return SyntheticWorld(seed=3, feature_dim=DIM)
+
+
+@pytest.fixture
+def episode_model(world) -> AbstractModel:
+    return world.explore(80, episode=0, seed=11)
+
+
+@pytest.fixture
+def tiny() -> AbstractModel:
+    """Three states in a row, a chair seen from all, a sofa from the last."""
+    m = AbstractModel(feature_dim=4, model_id="tiny")
+    feats = np.eye(4, dtype=np.float32)
+    chair = Detection("chair", (2.0, 0.0, 0.5), (10, 20, 30, 40), 2.0, 400)
+    s0 = m.add_state(feats[0], (0.0, 0.0, 0.0), [chair], episode=0, step=0)
+    s1 = m.add_state(feats[1], (0.25, 0.0, 0.0), [chair], episode=0, step=1)
+    s2 = m.add_state(
+        feats[2], (0.25, 0.0, np.pi / 6), [chair, Detection("sofa", (1.0, 2.0, 0.4))], step=2
+    )
+    m.add_transition(s0, "move_forward", s1)
+    m.add_transition(s1, "turn_left", s2)
+    return m

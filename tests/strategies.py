@@ -1,0 +1,49 @@
+"""Hypothesis strategies for Abstract Models built through the public API."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import strategies as st
+
+from kgnav import ACTIONS, AbstractModel, Detection
+
+CLASSES = ("chair", "sofa", "table", "bed")
+DIM = 6
+
+coord = st.floats(-20, 20, allow_nan=False, allow_infinity=False)
+angle = st.floats(-math.pi, math.pi, allow_nan=False, exclude_max=True)
+feature = st.lists(
+    st.floats(-1, 1, allow_nan=False, width=32), min_size=DIM, max_size=DIM
+).filter(lambda v: any(abs(x) > 1e-3 for x in v))
+detection = st.builds(
+    Detection,
+    st.sampled_from(CLASSES),
+    st.tuples(coord, coord, st.floats(0, 2, allow_nan=False)),
+    st.tuples(*[st.floats(0, 160, allow_nan=False)] * 4),
+    st.floats(0, 5, allow_nan=False),
+    st.integers(0, 5000),
+)
+state = st.tuples(feature, st.tuples(coord, coord, angle), st.lists(detection, max_size=3))
+
+
+@st.composite
+def models(draw, model_id: str | None = None, min_states: int = 1, max_states: int = 8):
+    m = AbstractModel(
+        feature_dim=DIM,
+        model_id=model_id or draw(st.sampled_from(["ma", "mb", "mc"])),
+        classes=CLASSES,
+    )
+    ids = []
+    for f, pose, dets in draw(st.lists(state, min_size=min_states, max_size=max_states)):
+        ids.append(m.add_state(np.array(f, dtype=np.float32), pose, dets))
+    n = len(ids)
+    for i, a, j in draw(
+        st.lists(
+            st.tuples(st.integers(0, n - 1), st.sampled_from(ACTIONS), st.integers(0, n - 1)),
+            max_size=10,
+        )
+    ):
+        m.add_transition(ids[i], a, ids[j])
+    return m

@@ -1,0 +1,134 @@
+import json
+import subprocess
+import sys
+
+import pytest
+
+from kgnav.cli import main
+
+
+def run(*args):
+    """Run the CLI in-process; return (exit code, stdout, stderr)."""
+    return subprocess.run([sys.executable, "-m", "kgnav.cli", *map(str, args)],
+                          capture_output=True, text=True)
+
+
+@pytest.fixture
+def files(tmp_path, world):
+    a = world.explore(100, episode=0, seed=21)
+    b = world.explore(100, episode=1, seed=22)
+    pa, pb = tmp_path / "a.graphml", tmp_path / "b.graphml"
+    a.save(pa)
+    b.save(pb)
+    return tmp_path, a, b, pa, pb
+
+
+def _in_process(capsys, *args):
+    with pytest.raises(SystemExit) as exc:
+        main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return exc.value.code, out, err
+
+
+def test_inspect_json(capsys, files):
+    _, a, _, pa, _ = files
+    code, out, err = _in_process(capsys, "inspect", pa, "--json")
+    assert code == 0, err
+    info = json.loads(out)
+    assert info["states"] == a.n_states and info["model_id"] == a.model_id
+    code, out, _ = _in_process(capsys, "inspect", pa)
+    assert code == 0 and a.model_id in out and "class inventory" in out
+
+
+def test_query_json(capsys, files):
+    from kgnav import query
+
+    _, a, _, pa, _ = files
+    cls = next(iter(query.class_inventory(a)))
+    code, out, err = _in_process(capsys, "query", pa, "--goal", cls, "--near", "1,-2", "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    expect = query.goal_point(a, cls, near=(1.0, -2.0))
+    assert res["goal_point"]["id"] == expect.id
+    assert len(res["ranking"]) == len(query.ranked_objects(a, cls))
+
+
+def test_merge_auto_and_explicit(capsys, files):
+    from kgnav import AbstractModel, best_anchor, merge
+
+    tmp, a, b, pa, pb = files
+    out_path = tmp / "m.graphml"
+    code, out, err = _in_process(capsys, "merge", pa, pb, "-o", out_path)
+    assert code == 0, err
+    ta, sb, _ = best_anchor(a, b)
+    assert AbstractModel.load(out_path) == merge(a, b, anchor=(ta, sb))
+    code, _, err = _in_process(capsys, "merge", pa, pb, "-o", out_path, "--anchor", "s3:s4")
+    assert code == 0, err
+    assert AbstractModel.load(out_path) == merge(a, b, anchor=("s3", "s4"))
+
+
+def test_store_ls(capsys, tmp_path, files):
+    from kgnav import ModelStore
+
+    _, a, b, _, _ = files
+    store = ModelStore(tmp_path / "mem")
+    store.save(a)
+    store.save(b)
+    (tmp_path / "mem" / "broken.graphml").write_text("<graphml")
+    code, out, err = _in_process(capsys, "store", "ls", tmp_path / "mem", "--json")
+    assert code == 0
+    listing = json.loads(out)
+    assert sorted(r["model_id"] for r in listing["models"]) == sorted([a.model_id, b.model_id])
+    assert listing["skipped"][0]["path"].endswith("broken.graphml")
+    assert "broken.graphml" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["inspect"], "Missing argument 'FILE'"),
+        (["frobnicate"], "No such command 'frobnicate'"),
+        (["query", "{a}", "--goal", "chair", "--near", "1"], "expected X,Y"),
+        (["merge", "{a}", "{b}", "-o", "{o}", "--anchor", "s1"], "TARGET_STATE:SOURCE_STATE"),
+        (["merge", "{a}", "{b}"], "Missing option '-o'"),
+        (["query", "{a}", "--goal", "chair", "--top", "0"], "--top"),
+    ],
+)
+def test_usage_errors_exit_2_with_one_line(files, args, needle):
+    tmp, _, _, pa, pb = files
+    args = [x.format(a=pa, b=pb, o=tmp / "o.graphml") for x in args]
+    res = run(*args)
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0] and lines[0].startswith("kgnav: usage error")
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["inspect", "{missing}"], "missing.graphml: no such file"),
+        (["inspect", "{corrupt}"], "corrupt.graphml: not valid XML"),
+        (["query", "{a}", "--goal", "spaceship"], "a.graphml: unknown object class 'spaceship'"),
+        (["merge", "{a}", "{b}", "-o", "{o}", "--anchor", "s1:s9999"], "b.graphml: no state 's9999'"),
+        (["export", "{corrupt}", "--html", "{o}"], "corrupt.graphml"),
+        (["store", "ls", "{missing}"], "missing.graphml: not a directory"),
+    ],
+)
+def test_data_errors_exit_1_with_one_line(files, args, needle):
+    tmp, _, _, pa, pb = files
+    corrupt = tmp / "corrupt.graphml"
+    corrupt.write_text("<graphml><node id=")
+    args = [x.format(a=pa, b=pb, o=tmp / "o.graphml", missing=tmp / "missing.graphml",
+                     corrupt=corrupt) for x in args]
+    res = run(*args)
+    assert res.returncode == 1, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0] and lines[0].startswith("kgnav: error")
+
+
+def test_failed_merge_leaves_output_untouched(files):
+    tmp, _, _, pa, pb = files
+    out = tmp / "keep.graphml"
+    out.write_text("precious")
+    res = run("merge", pa, pb, "-o", out, "--anchor", "s1:s9999")
+    assert res.returncode == 1 and out.read_text() == "precious"

@@ -1,0 +1,149 @@
+import os
+
+import networkx as nx
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+
+from kgnav import AbstractModel, ModelFileError, SchemaVersionError
+from kgnav import graphml as gml
+from tests.strategies import models
+
+
+@settings(max_examples=60, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(models())
+def test_round_trip_is_exact(tmp_path, m):
+    path = tmp_path / "m.graphml"
+    m.save(path)
+    back = AbstractModel.load(path)
+    assert back == m
+    for s in m.states():
+        assert back.features(s).tobytes() == m.features(s).tobytes()
+    # ids keep counting after load
+    f = np.arange(m.feature_dim, dtype=np.float32) + 100
+    assert back.add_state(f, (999.0, 0, 0)) == m.add_state(f, (999.0, 0, 0))
+
+
+def test_round_trip_synthetic(tmp_path, episode_model):
+    path = tmp_path / "e.graphml"
+    episode_model.save(path)
+    assert AbstractModel.load(path) == episode_model
+
+
+def test_feature_codec_bit_exact():
+    f = np.array([np.float32(0.1), -0.0, np.finfo(np.float32).tiny, 3.4e38], dtype=np.float32)
+    back = gml.decode_features(gml.encode_features(f), 4)
+    assert back.tobytes() == f.tobytes()
+    with pytest.raises(ValueError, match="expected 5"):
+        gml.decode_features(gml.encode_features(f), 5)
+
+
+def test_networkx_reads_the_file(tmp_path, tiny):
+    path = tmp_path / "t.graphml"
+    tiny.save(path)
+    g = nx.read_graphml(path, force_multigraph=True)
+    assert set(g.nodes) == set(tiny.graph.nodes)
+    assert set(g.edges(keys=True)) == set(tiny.graph.edges(keys=True))
+    assert g.graph["kgnav_schema"] == 1
+
+
+def test_failed_save_keeps_previous_file(tmp_path, tiny, monkeypatch):
+    path = tmp_path / "t.graphml"
+    tiny.save(path)
+    before = path.read_bytes()
+    bigger = tiny.copy()
+    bigger.add_state(np.ones(4), (5, 5, 0))
+
+    def boom(model):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(gml, "to_graphml", boom)
+    with pytest.raises(OSError):
+        bigger.save(path)
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["t.graphml"]  # no temp file left behind
+
+
+def test_crash_during_write_keeps_previous_file(tmp_path, tiny, monkeypatch):
+    path = tmp_path / "t.graphml"
+    tiny.save(path)
+    before = path.read_bytes()
+
+    real_fsync = os.fsync
+
+    def crash(fd):
+        real_fsync(fd)
+        raise KeyboardInterrupt  # interrupted after the bytes hit the temp file
+
+    monkeypatch.setattr(os, "fsync", crash)
+    with pytest.raises(KeyboardInterrupt):
+        tiny.save(path)
+    monkeypatch.setattr(os, "fsync", real_fsync)
+    assert path.read_bytes() == before
+    assert len(list(tmp_path.iterdir())) == 1
+
+
+def _write(tmp_path, name, text):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(ModelFileError, match="nope.graphml: no such file"):
+        AbstractModel.load(tmp_path / "nope.graphml")
+
+
+def test_truncated_file(tmp_path, tiny):
+    path = tmp_path / "t.graphml"
+    tiny.save(path)
+    path.write_bytes(path.read_bytes()[:500])
+    with pytest.raises(ModelFileError, match="t.graphml: not valid XML"):
+        AbstractModel.load(path)
+
+
+def test_foreign_graphml(tmp_path):
+    path = tmp_path / "foreign.graphml"
+    nx.write_graphml(nx.path_graph(3), path)
+    with pytest.raises(ModelFileError, match="foreign.graphml: not a kgnav Abstract Model"):
+        AbstractModel.load(path)
+
+
+def test_not_graphml_xml(tmp_path):
+    p = _write(tmp_path, "x.graphml", "<?xml version='1.0'?><svg></svg>")
+    with pytest.raises(ModelFileError, match="root element is 'svg'"):
+        AbstractModel.load(p)
+
+
+def test_wrong_schema_version(tmp_path, tiny):
+    path = tmp_path / "t.graphml"
+    tiny.graph.graph["kgnav_schema"] = 99
+    tiny.save(path)
+    with pytest.raises(SchemaVersionError, match="schema version 99"):
+        AbstractModel.load(path)
+
+
+def test_bad_feature_payload(tmp_path, tiny):
+    path = tmp_path / "t.graphml"
+    tiny.save(path)
+    text = path.read_text()
+    good = gml.encode_features(tiny.features("s1"))
+    path.write_text(text.replace(good, gml.encode_features(np.ones(3, np.float32))))
+    with pytest.raises(ModelFileError, match="state 's1': bad feature payload"):
+        AbstractModel.load(path)
+
+
+def test_missing_attribute(tmp_path, tiny):
+    del tiny.graph.nodes["s1"]["step"]
+    path = tmp_path / "t.graphml"
+    tiny.save(path)
+    with pytest.raises(ModelFileError, match="node 's1': missing attribute 'step'"):
+        AbstractModel.load(path)
+
+
+def test_edge_between_wrong_kinds(tmp_path, tiny):
+    tiny.graph.add_edge("s0", "o0", key="move_forward", kind="transition", count=1)
+    path = tmp_path / "t.graphml"
+    tiny.save(path)
+    with pytest.raises(ModelFileError, match="transition edge must join"):
+        AbstractModel.load(path)
