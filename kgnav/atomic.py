@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import IO
 
 
@@ -37,8 +37,3 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO]:
             os.unlink(tmp)
         raise
 
-
-def atomic_write(path: str | os.PathLike[str], writer: Callable[[IO], None], mode: str = "wb") -> None:
-    """Call ``writer(fh)`` on a temporary file and move it over ``path`` when it returns."""
-    with atomic_open(path, mode) as fh:
-        writer(fh)

@@ -7,7 +7,7 @@ default and is what the embedded simulator places in its houses.
 
 from __future__ import annotations
 
-#: Every class the embedded simulator can place; index = class id used in semantic frames (0 = none).
+#: Every class the embedded simulator can place; 1-based index = semantic class id (0 = none).
 OBJECT_CLASSES: tuple[str, ...] = (
     "chair",
     "bed",

@@ -250,7 +250,8 @@ def _list_store(directory: Path, as_json: bool) -> None:
 @click.option("--steps", default=200, show_default=True, type=click.IntRange(min=1),
               help="Actions per episode.")
 @click.option("--seed", default=0, show_default=True, help="Seed of the worlds and walks.")
-def demo(out_dir: Path, worlds: int, episodes: int, steps: int, seed: int) -> None:
+@click.option("--overwrite", is_flag=True, help="Replace the models a previous demo left in --out.")
+def demo(out_dir: Path, worlds: int, episodes: int, steps: int, seed: int, overwrite: bool) -> None:
     """Build a small memory on synthetic worlds, inspect it and export every model to HTML."""
     from rich.progress import Progress
 
@@ -258,8 +259,11 @@ def demo(out_dir: Path, worlds: int, episodes: int, steps: int, seed: int) -> No
     from kgnav.export_html import export_html
 
     store_dir = out_dir / "memory"
-    if store_dir.exists() and any(store_dir.iterdir()):
-        raise DataError(f"{store_dir}: already holds a memory; remove it or choose another --out")
+    existing = ModelStore(store_dir).ids()
+    if existing and not overwrite:
+        raise DataError(f"{store_dir}: already holds a memory; pass --overwrite or another --out")
+    for model_id in existing:  # only the store's own model files, nothing else in the folder
+        ModelStore(store_dir).delete(model_id)
     with Progress(transient=True) as bar:
         task = bar.add_task("exploring", total=worlds * episodes)
         rows = build_demo_memory(

@@ -1,14 +1,19 @@
 """Read and write Abstract Models as GraphML: one self-describing file per model.
 
-GraphML holds only scalar attributes, so each state's feature vector is stored as the base64 of
-its little-endian float32 bytes (the graph records ``feature_dim`` and ``feature_dtype``); every
-other attribute is a GraphML scalar. A saved model loads back equal, features bit for bit. Saving
-is atomic: the file is written beside the target and renamed over it.
+The file is plain GraphML: ``<key>`` declarations name and type every attribute, state and object
+nodes carry their attributes as ``<data>``, transitions and views are edges whose ``id`` is the
+edge key (the action name, or ``sees``), as networkx writes multigraphs. GraphML holds only
+scalars, so
 
-The files are plain GraphML that ``networkx.read_graphml(path, force_multigraph=True)`` reads
-(edge ids are the action keys, as networkx writes them). kgnav writes and parses them itself, with
-lxml, because networkx's generic reader and writer take about 1.5 s each for a 1e4-state model
-with 2048-d features, against 0.3–0.5 s here (``bench/bench_graphml.py``).
+* a state's feature vector is the base64 of its little-endian float32 bytes (the graph records
+  ``feature_dim`` and ``feature_dtype``): a saved model loads back equal, features bit for bit;
+* a view's bounding box and observed position are space-separated numbers (``bbox``, ``obs``);
+* an edge's kind follows from its key and is not written.
+
+Saving is atomic: the file is written beside the target and renamed over it.
+``networkx.read_graphml(path, force_multigraph=True)`` reads the files too; kgnav writes and
+parses them itself, schema first, because networkx's generic reader and writer take several
+seconds for a 1e4-state model (``bench/bench_graphml.py`` measures ours).
 
 >>> import numpy as np, tempfile, os
 >>> from kgnav import AbstractModel
@@ -32,50 +37,53 @@ from lxml import etree
 
 from kgnav.atomic import atomic_open
 from kgnav.errors import ModelFileError, SchemaVersionError
-from kgnav.model import SCHEMA_VERSION, AbstractModel
+from kgnav.model import SCHEMA_VERSION, SEES, AbstractModel
 
 _DTYPE = np.dtype("<f4")
+_NS = "http://graphml.graphdrawing.org/xmlns"
 
-_GRAPH_ATTRS = {
-    "kgnav_schema": int,
-    "model_id": str,
-    "feature_dim": int,
-    "feature_dtype": str,
-    "extractor": str,
-    "classes": str,
-    "episodes": str,
-    "merged_from": str,
-    "pose_tol": float,
-    "angle_tol": float,
-    "feature_tol": float,
-    "object_radius": float,
+# Schema: scope -> attribute -> GraphML type. Node attributes are shared by both node kinds.
+_GRAPH = {
+    "kgnav_schema": "long",
+    "model_id": "string",
+    "feature_dim": "long",
+    "feature_dtype": "string",
+    "extractor": "string",
+    "classes": "string",
+    "episodes": "string",
+    "merged_from": "string",
+    "pose_tol": "double",
+    "angle_tol": "double",
+    "feature_tol": "double",
+    "object_radius": "double",
 }
-_NODE_ATTRS = {
-    "state": {"x": float, "y": float, "theta": float, "episode": int, "step": int, "origin": str},
-    "object": {
-        "cls": str,
-        "x": float,
-        "y": float,
-        "z": float,
-        "n_obs": int,
-        "n_views": int,
-        "origin": str,
-    },
+_NODE = {
+    "kind": "string",
+    "x": "double",
+    "y": "double",
+    "theta": "double",
+    "z": "double",
+    "episode": "long",
+    "step": "long",
+    "features": "string",
+    "cls": "string",
+    "n_obs": "long",
+    "n_views": "long",
+    "origin": "string",
 }
-_EDGE_ATTRS = {
-    "transition": {"count": int},
-    "sees": {
-        "u0": float,
-        "v0": float,
-        "u1": float,
-        "v1": float,
-        "distance": float,
-        "pixels": int,
-        "ox": float,
-        "oy": float,
-        "oz": float,
-    },
+_EDGE = {"count": "long", "bbox": "string", "distance": "double", "pixels": "long", "obs": "string"}
+_REQUIRED = {
+    "state": {"kind", "x", "y", "theta", "episode", "step", "features", "origin"},
+    "object": {"kind", "cls", "x", "y", "z", "n_obs", "n_views", "origin"},
+    "transition": {"count"},
+    "sees": {"bbox", "distance", "pixels", "obs"},
 }
+_KEY_ID = {
+    **{("graph", n): f"g{i}" for i, n in enumerate(_GRAPH)},
+    **{("node", n): f"n{i}" for i, n in enumerate(_NODE)},
+    **{("edge", n): f"e{i}" for i, n in enumerate(_EDGE)},
+}
+_PY = {"boolean": bool, "int": int, "long": int, "float": float, "double": float, "string": str}
 
 
 def encode_features(f: np.ndarray) -> str:
@@ -94,70 +102,60 @@ def decode_features(text: str, dim: int) -> np.ndarray:
     return f
 
 
-_NS = "http://graphml.graphdrawing.org/xmlns"
-_HEADER = (
-    "<?xml version='1.0' encoding='utf-8'?>\n"
-    f'<graphml xmlns="{_NS}" xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
-    f'xsi:schemaLocation="{_NS} {_NS}/1.0/graphml.xsd">\n'
-)
-_XML_TYPE = {bool: "boolean", int: "long", float: "double", str: "string"}
-_PY_TYPE = {"boolean": bool, "int": int, "long": int, "float": float, "double": float, "string": str}
+def _numbers(values) -> str:
+    return " ".join(repr(float(v)) for v in values)
 
 
-def _scalar(value) -> str:
+def _text(value) -> str:
     t = type(value)
     if t is float:
         return repr(value)  # shortest repr round-trips exactly
     if t is int:
         return str(value)
-    if t is bool:
-        return "true" if value else "false"
+    value = str(value)
     return escape(value) if ("&" in value or "<" in value or ">" in value) else value
 
 
-class _Keys:
-    """GraphML ``<key>`` declarations, one per (scope, attribute name)."""
-
-    def __init__(self) -> None:
-        self.ids: dict[tuple[str, str], str] = {}
-        self.decls: list[str] = []
-
-    def id(self, scope: str, name: str, value) -> str:
-        kid = self.ids.get((scope, name))
-        if kid is None:
-            kid = self.ids[(scope, name)] = f"d{len(self.ids)}"
-            xml_type = _XML_TYPE[type(value)]
-            self.decls.append(
-                f'<key id="{kid}" for="{scope}" attr.name={quoteattr(name)} '
-                f'attr.type="{xml_type}" />\n'
-            )
-        return kid
-
-    def data(self, scope: str, attrs: dict) -> str:
-        return "".join(
-            f'<data key="{self.id(scope, k, v)}">{_scalar(v)}</data>' for k, v in attrs.items()
-        )
+def _data(scope: str, attrs: dict) -> str:
+    return "".join(f'<data key="{_KEY_ID[scope, k]}">{_text(v)}</data>' for k, v in attrs.items())
 
 
 def to_graphml(model: AbstractModel) -> bytes:
-    """The model as a GraphML document (features base64-encoded)."""
-    keys = _Keys()
-    body = [
-        '<graph edgedefault="directed">\n',
-        keys.data("graph", model.graph.graph),
-        "\n",
+    """The model as a GraphML document."""
+    out = [
+        "<?xml version='1.0' encoding='utf-8'?>\n"
+        f'<graphml xmlns="{_NS}" xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
+        f'xsi:schemaLocation="{_NS} {_NS}/1.0/graphml.xsd">\n'
     ]
+    for scope, spec in (("graph", _GRAPH), ("node", _NODE), ("edge", _EDGE)):
+        for name, typ in spec.items():
+            out.append(
+                f'<key id="{_KEY_ID[scope, name]}" for="{scope}" attr.name="{name}" '
+                f'attr.type="{typ}" />\n'
+            )
+    out.append('<graph edgedefault="directed">\n')
+    out.append(_data("graph", {k: model.graph.graph[k] for k in _GRAPH}))
+    out.append("\n")
     for n, d in model.graph.nodes(data=True):
         if d["kind"] == "state":
             d = dict(d, features=encode_features(d["features"]))
-        body.append(f"<node id={quoteattr(n)}>{keys.data('node', d)}</node>\n")
+        out.append(f"<node id={quoteattr(n)}>{_data('node', d)}</node>\n")
     for u, v, k, d in model.graph.edges(keys=True, data=True):
-        body.append(
+        if k == SEES:
+            attrs = {
+                "bbox": _numbers(d["bbox"]),
+                "distance": d["distance"],
+                "pixels": d["pixels"],
+                "obs": _numbers(d["obs"]),
+            }
+        else:
+            attrs = {"count": d["count"]}
+        out.append(
             f"<edge id={quoteattr(k)} source={quoteattr(u)} target={quoteattr(v)}>"
-            f"{keys.data('edge', d)}</edge>\n"
+            f"{_data('edge', attrs)}</edge>\n"
         )
-    body.append("</graph>\n</graphml>\n")
-    return "".join([_HEADER, *keys.decls, *body]).encode("utf-8")
+    out.append("</graph>\n</graphml>\n")
+    return "".join(out).encode("utf-8")
 
 
 def write_model(model: AbstractModel, path: str | os.PathLike[str]) -> None:
@@ -171,69 +169,77 @@ def _bool(text: str) -> bool:
     return text.strip().lower() in ("true", "1")
 
 
-def parse_graphml(path: str) -> nx.MultiDiGraph:
-    """Read a single-graph GraphML file into a ``MultiDiGraph`` (string node ids, edge id = key).
+def parse_graphml(path: str) -> tuple[nx.MultiDiGraph, dict[tuple[str, str], str]]:
+    """Read a single-graph GraphML file into a ``MultiDiGraph`` (string ids, edge id = key).
 
-    Raises ``ValueError`` for XML that is not GraphML as kgnav writes it.
+    Returns the graph and the declared type of each ``(scope, attribute)``. Raises
+    ``ValueError`` for XML that is not such a GraphML file.
     """
-    parser = etree.XMLParser(resolve_entities=False, no_network=True, huge_tree=False)
+    parser = etree.XMLParser(resolve_entities=False, no_network=True)
     root = etree.parse(path, parser).getroot()
     if root.tag != f"{{{_NS}}}graphml":
         raise ValueError(f"root element is {etree.QName(root).localname!r}, not graphml")
     keys: dict[str, tuple[str, object]] = {}
+    types: dict[tuple[str, str], str] = {}
     graph_el = None
     for el in root:
         if el.tag == f"{{{_NS}}}key":
-            typ = _PY_TYPE.get(el.get("attr.type", "string"))
-            if typ is None:
-                raise ValueError(f"key {el.get('id')!r} has unsupported type {el.get('attr.type')!r}")
-            keys[el.get("id")] = (el.get("attr.name"), _bool if typ is bool else typ)
+            typ = el.get("attr.type", "string")
+            if typ not in _PY:
+                raise ValueError(f"key {el.get('id')!r} has unsupported type {typ!r}")
+            name = el.get("attr.name")
+            keys[el.get("id")] = (name, _bool if typ == "boolean" else _PY[typ])
+            types[(el.get("for", "all"), name)] = typ
         elif el.tag == f"{{{_NS}}}graph":
             if graph_el is not None:
                 raise ValueError("more than one graph in the file")
             graph_el = el
     if graph_el is None:
         raise ValueError("no graph element")
-
-    data_tag = f"{{{_NS}}}data"
+    data_tag, node_tag, edge_tag = (f"{{{_NS}}}{t}" for t in ("data", "node", "edge"))
 
     def data_of(el) -> dict:
         out = {}
         for d in el:
-            if d.tag != data_tag:
-                continue
-            try:
-                name, conv = keys[d.get("key")]
-            except KeyError:
-                raise ValueError(f"data refers to undeclared key {d.get('key')!r}") from None
-            out[name] = conv(d.text or "")
+            if d.tag == data_tag:
+                try:
+                    name, conv = keys[d.get("key")]
+                except KeyError:
+                    raise ValueError(f"data refers to undeclared key {d.get('key')!r}") from None
+                out[name] = conv(d.text or "")
         return out
 
     g = nx.MultiDiGraph()
     g.graph.update(data_of(graph_el))
+    nodes, adj = g._node, g._adj
     for el in graph_el:
-        if el.tag == f"{{{_NS}}}node":
+        if el.tag == node_tag:
             g.add_node(el.get("id"), **data_of(el))
-        elif el.tag == f"{{{_NS}}}edge":
+        elif el.tag == edge_tag:
             u, v = el.get("source"), el.get("target")
-            if u not in g or v not in g:
+            if u not in nodes or v not in nodes:
                 raise ValueError(f"edge {u!r}->{v!r} refers to a missing node")
+            if el.get("id") in adj[u].get(v, ()):
+                raise ValueError(f"edge {u!r}->{v!r} with key {el.get('id')!r} appears twice")
             g.add_edge(u, v, key=el.get("id"), **data_of(el))
-    return g
+    return g, types
 
 
-def _check(path, where: str, data: dict, spec: dict) -> None:
-    for name, typ in spec.items():
-        if name not in data:
-            raise ModelFileError(path, f"{where}: missing attribute {name!r}")
-        value = data[name]
-        # GraphML may store an int-typed key as "long"; accept ints where floats are expected.
-        if typ is float and isinstance(value, int) and not isinstance(value, bool):
-            data[name] = value = float(value)
-        if not isinstance(value, typ) or isinstance(value, bool):
-            raise ModelFileError(
-                path, f"{where}: attribute {name!r} is {type(value).__name__}, expected {typ.__name__}"
-            )
+def _check_types(path, types: dict[tuple[str, str], str]) -> None:
+    """Declared attribute types must be the schema's (a float may be declared as an integer)."""
+    for scope, spec in (("graph", _GRAPH), ("node", _NODE), ("edge", _EDGE)):
+        for name, want in spec.items():
+            got = types.get((scope, name), types.get(("all", name)))
+            if got is None or _PY[got] is _PY[want] or (_PY[want] is float and _PY[got] is int):
+                continue
+            raise ModelFileError(path, f"{scope} attribute {name!r} is declared {got}, not {want}")
+
+
+def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
+    values = tuple(map(float, text.split()))
+    if len(values) != n:
+        raise ValueError(f"{what} has {len(values)} numbers, expected {n}")
+    return values
 
 
 def read_model(path: str | os.PathLike[str]) -> AbstractModel:
@@ -246,43 +252,64 @@ def read_model(path: str | os.PathLike[str]) -> AbstractModel:
     if not os.path.exists(path):
         raise ModelFileError(path, "no such file")
     try:
-        g = parse_graphml(path)
+        g, types = parse_graphml(path)
     except etree.XMLSyntaxError as exc:
         raise ModelFileError(path, f"not valid XML ({exc.msg})") from None
     except (ValueError, TypeError) as exc:
         raise ModelFileError(path, f"not a readable GraphML file ({exc})") from None
     except OSError as exc:
         raise ModelFileError(path, f"cannot read ({exc.strerror or exc})") from None
-    if not isinstance(g, nx.MultiDiGraph) or "kgnav_schema" not in g.graph:
+    if "kgnav_schema" not in g.graph:
         raise ModelFileError(path, "not a kgnav Abstract Model (no kgnav_schema attribute)")
     version = g.graph["kgnav_schema"]
     if version != SCHEMA_VERSION:
         raise SchemaVersionError(
             path, f"schema version {version!r}, this kgnav reads version {SCHEMA_VERSION}"
         )
-    _check(path, "graph", g.graph, _GRAPH_ATTRS)
+    _check_types(path, types)
+    missing = set(_GRAPH) - set(g.graph)
+    if missing:
+        raise ModelFileError(path, f"graph: missing attribute {sorted(missing)[0]!r}")
+    for name in ("pose_tol", "angle_tol", "feature_tol", "object_radius"):
+        g.graph[name] = float(g.graph[name])
     dim = g.graph["feature_dim"]
     if g.graph["feature_dtype"] != "float32" or dim <= 0:
         raise ModelFileError(path, f"unsupported features {g.graph['feature_dtype']}[{dim}]")
     classes = set(g.graph["classes"].split(","))
     for n, d in g.nodes(data=True):
         kind = d.get("kind")
-        if kind not in _NODE_ATTRS:
+        if kind not in ("state", "object"):
             raise ModelFileError(path, f"node {n!r}: unknown kind {kind!r}")
-        _check(path, f"node {n!r}", d, _NODE_ATTRS[kind])
+        missing = _REQUIRED[kind] - d.keys()
+        if missing:
+            raise ModelFileError(path, f"node {n!r}: missing attribute {sorted(missing)[0]!r}")
+        for axis in ("x", "y", "theta") if kind == "state" else ("x", "y", "z"):
+            d[axis] = float(d[axis])
         if kind == "state":
             try:
-                d["features"] = decode_features(d.get("features", ""), dim)
+                d["features"] = decode_features(d["features"], dim)
             except (ValueError, TypeError) as exc:
                 raise ModelFileError(path, f"state {n!r}: bad feature payload ({exc})") from None
         elif d["cls"] not in classes:
-            raise ModelFileError(path, f"object {n!r}: class {d['cls']!r} not in the model's classes")
+            raise ModelFileError(
+                path, f"object {n!r}: class {d['cls']!r} not in the model's classes"
+            )
     for u, v, k, d in g.edges(keys=True, data=True):
-        kind = d.get("kind")
-        if kind not in _EDGE_ATTRS:
-            raise ModelFileError(path, f"edge {u!r}->{v!r}: unknown kind {kind!r}")
-        _check(path, f"edge {u!r}->{v!r}", d, _EDGE_ATTRS[kind])
+        kind = "sees" if k == SEES else "transition"
+        missing = _REQUIRED[kind] - d.keys()
+        if missing:
+            raise ModelFileError(
+                path, f"edge {u!r}->{v!r}: missing attribute {sorted(missing)[0]!r}"
+            )
         want = ("state", "object") if kind == "sees" else ("state", "state")
         if (g.nodes[u]["kind"], g.nodes[v]["kind"]) != want:
             raise ModelFileError(path, f"edge {u!r}->{v!r}: a {kind} edge must join {want}")
+        d["kind"] = kind
+        if kind == "sees":
+            try:
+                d["bbox"] = _floats(d["bbox"], 4, "bbox")
+                d["obs"] = _floats(d["obs"], 3, "obs")
+            except ValueError as exc:
+                raise ModelFileError(path, f"edge {u!r}->{v!r}: {exc}") from None
+            d["distance"] = float(d["distance"])
     return AbstractModel.from_graph(g)

@@ -1,4 +1,4 @@
-"""The Abstract Model: a finite state machine grounded in perception, held as a NetworkX multi-digraph.
+"""The Abstract Model: a finite state machine grounded in perception, as a NetworkX multi-digraph.
 
 Schema (version :data:`SCHEMA_VERSION`, DESIGN.md §3):
 
@@ -10,9 +10,9 @@ state node     ``kind="state"``          ``x, y, theta`` (model frame), ``episod
 object node    ``kind="object"``         ``cls``, ``x, y, z`` (mean of observations),
                                          ``n_obs``, ``n_views``, ``origin``
 transition     state → state, key=action ``kind="transition"``, ``count``
-sees edge      state → object, key=sees  ``kind="sees"``, ``u0, v0, u1, v1`` (bbox, px),
-                                         ``distance`` (m), ``pixels``, ``ox, oy, oz``
-                                         (this observation's position, model frame)
+sees edge      state → object, key=sees  ``kind="sees"``, ``bbox`` (u0, v0, u1, v1 px),
+                                         ``distance`` (m), ``pixels``, ``obs`` (x, y, z of
+                                         this observation, model frame)
 graph          —                         ``kgnav_schema``, ``model_id``, ``feature_dim``,
                                          ``extractor``, ``classes``, ``episodes``,
                                          ``merged_from``, tolerances
@@ -305,7 +305,9 @@ class AbstractModel:
     def _object_cell(self, oid: str) -> tuple[str, int, int]:
         d = self.graph.nodes[oid]
         r = self._tol("object_radius")
-        return (d["cls"], math.floor(d["x"] / r), math.floor(d["y"] / r)) if r > 0 else (d["cls"], 0, 0)
+        if r <= 0:
+            return (d["cls"], 0, 0)
+        return (d["cls"], math.floor(d["x"] / r), math.floor(d["y"] / r))
 
     def _validate_features(self, features) -> np.ndarray:
         f = np.asarray(features)
@@ -318,7 +320,7 @@ class AbstractModel:
         return f
 
     def find_state(self, pose, features) -> str | None:
-        """An existing state coincident with ``pose``/``features`` (within the tolerances), else None."""
+        """An existing state coincident with ``pose`` and ``features`` (tolerances), else None."""
         x, y, theta = se2.as_pose(pose)
         f = features if isinstance(features, np.ndarray) else np.asarray(features, np.float32)
         cx, cy = self._cell(x, y)
@@ -355,6 +357,10 @@ class AbstractModel:
         detections = list(detections)
         for det in detections:
             self.check_class(det.cls)
+            if len(det.position) != 3 or len(det.bbox) != 4:
+                raise ValueError(
+                    f"a {det.cls} detection needs position (x, y, z) and bbox (u0, v0, u1, v1)"
+                )
         existing = self.find_state(pose, f)
         if existing is not None:
             return existing
@@ -365,10 +371,7 @@ class AbstractModel:
                 det.cls,
                 tuple(float(v) for v in det.position),
                 dict(
-                    u0=float(det.bbox[0]),
-                    v0=float(det.bbox[1]),
-                    u1=float(det.bbox[2]),
-                    v1=float(det.bbox[3]),
+                    bbox=tuple(float(v) for v in det.bbox),
                     distance=float(det.distance),
                     pixels=int(det.pixels),
                 ),
@@ -457,7 +460,7 @@ class AbstractModel:
             oid = self._new_object_node(cls, xyz, 1, None)
         else:
             self._absorb_into_object(oid, xyz, 1)
-        self._link_view(sid, oid, dict(view, ox=xyz[0], oy=xyz[1], oz=xyz[2]))
+        self._link_view(sid, oid, dict(view, obs=tuple(xyz)))
         return oid
 
     def add_transition(self, src: str, action: str, dst: str, count: int = 1) -> None:
@@ -485,7 +488,8 @@ class AbstractModel:
                 d["x"], d["y"] = se2.apply_to_point(T, d["x"], d["y"])
         for *_, d in self.graph.edges(data=True):
             if d["kind"] == "sees":
-                d["ox"], d["oy"] = se2.apply_to_point(T, d["ox"], d["oy"])
+                ox, oy, oz = d["obs"]
+                d["obs"] = (*se2.apply_to_point(T, ox, oy), oz)
         self._init_counters()
         return self
 
@@ -505,7 +509,7 @@ class AbstractModel:
 
     @classmethod
     def from_graph(cls, graph: nx.MultiDiGraph) -> AbstractModel:
-        """Wrap a graph that already follows the schema (no validation; see :mod:`kgnav.graphml`)."""
+        """Wrap a graph that follows the schema (no validation: see :mod:`kgnav.graphml`)."""
         m = cls.__new__(cls)
         m.graph = graph
         m._init_counters()

@@ -65,7 +65,8 @@ def visible_from(model: AbstractModel, state: str) -> list[ObjectInfo]:
     """Objects seen from ``state`` (``C_s`` with positions), nearest view first."""
     model._check_state(state)
     g = model.graph
-    views = [(d["distance"], o) for _, o, k, d in g.out_edges(state, keys=True, data=True) if k == SEES]
+    edges = g.out_edges(state, keys=True, data=True)
+    views = [(d["distance"], o) for _, o, k, d in edges if k == SEES]
     return [model.object_info(o) for _, o in sorted(views)]
 
 

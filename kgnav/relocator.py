@@ -118,6 +118,8 @@ class ExactBackend(SearchBackend):
 class HNSWBackend(SearchBackend):
     """faiss HNSW over a PCA projection of the features, exact re-rank of the candidates.
 
+    Below ``min_rows`` rows it searches exactly: a graph index only pays off on large tables.
+
     Parameters
     ----------
     pca_dim:
@@ -126,8 +128,11 @@ class HNSWBackend(SearchBackend):
     M, ef_construction, ef_search:
         HNSW graph degree and search breadths (faiss's parameters).
     train_size:
-        At most this many rows train the projection; it is retrained, and the graph rebuilt,
-        each time the table has doubled since the last training, so it follows new environments.
+        At most this many rows train the projection (scikit-learn's randomized PCA); it is
+        retrained, and the graph rebuilt, each time the table has doubled since the last
+        training, so it follows new environments.
+    min_rows:
+        Tables smaller than this are searched exactly.
     """
 
     def __init__(
@@ -136,7 +141,8 @@ class HNSWBackend(SearchBackend):
         M: int = 32,
         ef_construction: int = 80,
         ef_search: int = 96,
-        train_size: int = 20000,
+        train_size: int = 10000,
+        min_rows: int = 5000,
         seed: int = 0,
     ):
         try:
@@ -148,31 +154,35 @@ class HNSWBackend(SearchBackend):
         self._faiss = faiss
         self.pca_dim, self.M = pca_dim, M
         self.ef_construction, self.ef_search = ef_construction, ef_search
-        self.train_size, self.seed = train_size, seed
+        self.train_size, self.min_rows, self.seed = train_size, min_rows, seed
         self._pca = None
         self._index = None
         self._trained_at = 0
 
     def _project(self, x: np.ndarray) -> np.ndarray:
-        x = np.ascontiguousarray(x, dtype=np.float32)
-        return self._pca.apply(x) if self._pca is not None else x
+        if self._pca is None:
+            return np.ascontiguousarray(x, dtype=np.float32)
+        mean, components = self._pca
+        return np.ascontiguousarray((x - mean) @ components.T, dtype=np.float32)
 
     def rebuild(self, table: VectorTable) -> None:
-        faiss = self._faiss
+        from sklearn.decomposition import PCA
+
         self._index, self._pca = None, None
         self._trained_at = table.n
-        if table.n == 0:
+        if table.n < self.min_rows:
             return
         x = table.vectors
-        if self.pca_dim < table.dim and table.n > self.pca_dim:
+        if self.pca_dim < table.dim:
             rng = np.random.default_rng(self.seed)
-            take = rng.choice(table.n, min(table.n, self.train_size), replace=False)
-            self._pca = faiss.PCAMatrix(table.dim, self.pca_dim)
-            self._pca.train(np.ascontiguousarray(x[np.sort(take)]))
+            take = np.sort(rng.choice(table.n, min(table.n, self.train_size), replace=False))
+            pca = PCA(self.pca_dim, svd_solver="randomized", random_state=self.seed).fit(x[take])
+            self._pca = (pca.mean_.astype(np.float32), pca.components_.astype(np.float32))
         dim = self.pca_dim if self._pca is not None else table.dim
-        self._index = faiss.IndexHNSWFlat(dim, self.M)
+        self._index = self._faiss.IndexHNSWFlat(dim, self.M)
         self._index.hnsw.efConstruction = self.ef_construction
-        self._index.add(self._project(x))
+        for start in range(0, table.n, 65536):  # bounded temporaries on large tables
+            self._index.add(self._project(x[start : start + 65536]))
 
     def added(self, table: VectorTable, start: int) -> None:
         if self._index is None or table.n >= 2 * max(self._trained_at, 1):
@@ -181,6 +191,8 @@ class HNSWBackend(SearchBackend):
             self._index.add(self._project(table.vectors[start:]))
 
     def candidates(self, table: VectorTable, q: np.ndarray, k: int) -> np.ndarray:
+        if self._index is None:
+            return ExactBackend().candidates(table, q, k)
         self._index.hnsw.efSearch = max(self.ef_search, k)
         _, idx = self._index.search(self._project(q[None, :]), k)
         return idx[0][idx[0] >= 0]

@@ -72,7 +72,7 @@ def apply_to_pose(T: Pose, p: Pose) -> Pose:
 
 
 def anchor_transform(target_pose: Pose, source_pose: Pose) -> Pose:
-    """``T = target ∘ source⁻¹``: maps the source frame so that ``source_pose`` lands on ``target_pose``."""
+    """``T = target ∘ source⁻¹``: the transform taking ``source_pose`` onto ``target_pose``."""
     return compose(target_pose, inverse(source_pose))
 
 

@@ -31,7 +31,6 @@ from kgnav.graphml import read_model, write_model
 from kgnav.model import SAFE_ID, AbstractModel
 
 
-
 @dataclass(frozen=True)
 class StoreProblem:
     """A file of the store that could not be loaded, and why."""

@@ -211,7 +211,9 @@ def clustered_features(
     Returns ``(features, world_index, worlds)``.
     """
     rng = np.random.default_rng(seed)
-    worlds = [SyntheticWorld(seed=seed * 1000 + i, feature_dim=feature_dim) for i in range(n_worlds)]
+    worlds = [
+        SyntheticWorld(seed=seed * 1000 + i, feature_dim=feature_dim) for i in range(n_worlds)
+    ]
     which = np.sort(rng.integers(0, n_worlds, n_states))
     feats = np.empty((n_states, feature_dim), dtype=np.float32)
     for i, w in enumerate(worlds):

@@ -146,18 +146,25 @@ def test_empty_model(tmp_path):
     assert _data(html.read_text(encoding="utf-8"), "nodes") == []
 
 
+def _no_browser(reason: str):
+    # CI installs Chromium and sets KGNAV_REQUIRE_BROWSER=1: there a missing browser is a failure
+    if os.environ.get("KGNAV_REQUIRE_BROWSER") == "1":
+        pytest.fail(reason.replace("browser test skipped", "KGNAV_REQUIRE_BROWSER=1 is set"))
+    pytest.skip(reason)
+
+
 def _chromium() -> str:
     wanted = os.environ.get("KGNAV_CHROMIUM")
     if wanted:
         found = shutil.which(wanted)
         if not found:
-            pytest.skip(f"KGNAV_CHROMIUM={wanted!r} is not an executable; browser test skipped")
+            _no_browser(f"KGNAV_CHROMIUM={wanted!r} is not an executable; browser test skipped")
         return found
     for name in ("chromium", "chromium-browser", "google-chrome"):
         found = shutil.which(name)
         if found:
             return found
-    pytest.skip("no Chromium found (apt-get install chromium); browser test skipped")
+    _no_browser("no Chromium found (apt-get install chromium); browser test skipped")
 
 
 def test_renders_offline_in_chromium(page, model, tmp_path):

@@ -3,8 +3,14 @@ import math
 import numpy as np
 import pytest
 
-from kgnav import AbstractModel, Detection, FeatureDimError, UnknownClassError, UnknownStateError
-from kgnav import se2
+from kgnav import (
+    AbstractModel,
+    Detection,
+    FeatureDimError,
+    UnknownClassError,
+    UnknownStateError,
+    se2,
+)
 
 
 def test_tiny_structure(tiny):

@@ -1,8 +1,7 @@
 import numpy as np
 import pytest
 
-from kgnav import AbstractModel, Detection, UnknownClassError, UnknownStateError
-from kgnav import query
+from kgnav import AbstractModel, Detection, UnknownClassError, UnknownStateError, query
 
 
 def _chairs():

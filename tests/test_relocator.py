@@ -94,7 +94,8 @@ def test_hnsw_agrees_with_exact():
     feats, _, worlds = clustered_features(3000, feature_dim=128, n_worlds=6, seed=1)
     models = [_model(f"m{i}", feats[i::6]) for i in range(6)]
     exact = Relocator().fit(models)
-    approx = Relocator(backend="hnsw", backend_params={"pca_dim": 32}).fit(models)
+    approx = Relocator(backend="hnsw", backend_params={"pca_dim": 32, "min_rows": 100}).fit(models)
+    assert approx._backend._index is not None  # the graph index is really in use
     queries, _, _ = clustered_features(200, feature_dim=128, n_worlds=6, seed=1)
     queries = queries + np.random.default_rng(0).normal(0, 0.01, queries.shape).astype(np.float32)
     agree = sum(exact.nearest(q)[0][:2] == approx.nearest(q)[0][:2] for q in queries)
