@@ -175,7 +175,7 @@ def parse_graphml(path: str) -> tuple[nx.MultiDiGraph, dict[tuple[str, str], str
     Returns the graph and the declared type of each ``(scope, attribute)``. Raises
     ``ValueError`` for XML that is not such a GraphML file.
     """
-    parser = etree.XMLParser(resolve_entities=False, no_network=True)
+    parser = etree.XMLParser(resolve_entities=False, no_network=True, collect_ids=False)
     root = etree.parse(path, parser).getroot()
     if root.tag != f"{{{_NS}}}graphml":
         raise ValueError(f"root element is {etree.QName(root).localname!r}, not graphml")

@@ -126,7 +126,10 @@ class HNSWBackend(SearchBackend):
         Dimension the features are projected to before indexing (no projection if ≥ the
         feature dimension).
     M, ef_construction, ef_search:
-        HNSW graph degree and search breadths (faiss's parameters).
+        HNSW graph degree and search breadths (faiss's parameters). Clustered features (many
+        views of a few environments) need a well-connected graph: M=32, efConstruction=80
+        lost 2% recall@1 at 2e5 states where these defaults lose none
+        (``bench/bench_relocator.py``).
     train_size:
         At most this many rows train the projection (scikit-learn's randomized PCA); it is
         retrained, and the graph rebuilt, each time the table has doubled since the last
@@ -138,8 +141,8 @@ class HNSWBackend(SearchBackend):
     def __init__(
         self,
         pca_dim: int = 128,
-        M: int = 32,
-        ef_construction: int = 80,
+        M: int = 48,
+        ef_construction: int = 120,
         ef_search: int = 96,
         train_size: int = 10000,
         min_rows: int = 5000,
@@ -166,12 +169,11 @@ class HNSWBackend(SearchBackend):
         return np.ascontiguousarray((x - mean) @ components.T, dtype=np.float32)
 
     def rebuild(self, table: VectorTable) -> None:
-        from sklearn.decomposition import PCA
-
         self._index, self._pca = None, None
         self._trained_at = table.n
         if table.n < self.min_rows:
             return
+        from sklearn.decomposition import PCA  # only large tables pay for the import
         x = table.vectors
         if self.pca_dim < table.dim:
             rng = np.random.default_rng(self.seed)

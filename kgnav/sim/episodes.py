@@ -29,7 +29,13 @@ from kgnav.classes import OBJECTNAV_CLASSES, class_id
 from kgnav.errors import SceneFileError
 from kgnav.sim.house import GENERATOR, Scene, generate_house
 from kgnav.sim.navmesh import NavMap
-from kgnav.sim.scene_io import atomic_write_text, check_header, load_scene, save_scene
+from kgnav.sim.scene_io import (
+    atomic_write_text,
+    check_header,
+    load_scene,
+    read_json,
+    save_scene,
+)
 
 SPLITS: dict[str, tuple[int, ...]] = {
     "train": tuple(range(1000, 1020)),
@@ -153,13 +159,7 @@ def save_episodes(episodes: list[Episode], path, split: str = "", scene: str = "
 def load_episodes(path) -> list[Episode]:
     """Load and validate an episode file; :class:`SceneFileError` if it cannot be used."""
     path = os.fspath(path)
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-    except FileNotFoundError:
-        raise SceneFileError(path, "file not found") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise SceneFileError(path, f"not valid JSON ({e})") from None
+    data = read_json(path)
     check_header(data, path, EPISODES_FORMAT, EPISODES_VERSION)
     try:
         eps = []

@@ -66,19 +66,23 @@ def save_scene(scene: Scene, path: str | os.PathLike[str]) -> None:
     atomic_write_text(path, json.dumps(scene_to_dict(scene), separators=(",", ":")))
 
 
-def load_scene(path: str | os.PathLike[str]) -> Scene:
-    """Load and validate a scene file; :class:`SceneFileError` if it cannot be used."""
+def read_json(path: str | os.PathLike[str]) -> Any:
+    """Parse a JSON file, turning every way it can fail into a :class:`SceneFileError`."""
     path = os.fspath(path)
     try:
         with open(path, encoding="utf-8") as f:
-            data = json.load(f)
+            return json.load(f)
     except FileNotFoundError:
         raise SceneFileError(path, "file not found") from None
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise SceneFileError(path, f"not valid JSON ({e})") from None
     except OSError as e:
         raise SceneFileError(path, f"cannot read ({e.strerror or e})") from None
-    return scene_from_dict(data, path)
+
+
+def load_scene(path: str | os.PathLike[str]) -> Scene:
+    """Load and validate a scene file; :class:`SceneFileError` if it cannot be used."""
+    return scene_from_dict(read_json(path), os.fspath(path))
 
 
 def check_header(data: Any, path: str, fmt: str, version: int) -> None:
