@@ -18,7 +18,6 @@ from kgnav import query
 from kgnav.errors import KgnavError
 from kgnav.graphml import read_model
 from kgnav.merge import best_anchor, merge
-from kgnav.model import AbstractModel
 from kgnav.store import ModelStore
 
 out = Console(highlight=False, soft_wrap=True)
@@ -37,10 +36,6 @@ def store_app() -> None:
 
 class DataError(KgnavError):
     """A KgnavError already prefixed with the file it concerns."""
-
-
-def _load(path: Path) -> AbstractModel:
-    return read_model(path)
 
 
 def _about(path: Path, exc: KgnavError) -> DataError:
@@ -80,7 +75,7 @@ _JSON = click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @_JSON
 def inspect(file: Path, as_json: bool) -> None:
     """Summarise a model: sizes, frame extent, episodes, provenance, class inventory."""
-    info = query.summary(_load(file))
+    info = query.summary(read_model(file))
     if as_json:
         _emit_json(info)
         return
@@ -120,7 +115,7 @@ def merge_cmd(target: Path, source: Path, output: Path, anchor) -> None:
     The result keeps TARGET's frame and id; SOURCE is mapped by
     T = pose(target_state) o pose(source_state)^-1.
     """
-    a, b = _load(target), _load(source)
+    a, b = read_model(target), read_model(source)
     if anchor == "auto":
         ta, sb, dist = best_anchor(a, b)
         note = f"auto anchor {ta}:{sb} (cosine distance {dist:.4f})"
@@ -154,7 +149,7 @@ def merge_cmd(target: Path, source: Path, output: Path, anchor) -> None:
 def query_cmd(file: Path, goal: str, near, top: int, as_json: bool) -> None:
     """The goal point for a class, as the paper picks it, and the visibility ranking."""
     xy = near or (0.0, 0.0)
-    model = _load(file)
+    model = read_model(file)
     try:
         ranked = query.ranked_objects(model, goal)
         chosen = query.goal_point(model, goal, near=xy, top_k=top)
@@ -197,7 +192,7 @@ def export_cmd(file: Path, html: Path) -> None:
     """Write an interactive HTML floor-plan view of a model (works offline)."""
     from kgnav.export_html import export_html
 
-    path = export_html(_load(file), html)
+    path = export_html(read_model(file), html)
     out.print(f"wrote {path}")
 
 
@@ -283,8 +278,11 @@ def demo(out_dir: Path, worlds: int, episodes: int, steps: int, seed: int, overw
     for model_id, model in models.items():
         page = export_html(model, out_dir / "html" / f"{model_id}.html")
         goal = query.goal_point(model, "chair")
-        where = "none seen" if goal is None else f"{goal.id} at ({goal.position[0]:.2f}, " \
-            f"{goal.position[1]:.2f}), {goal.n_views} views"
+        if goal is None:
+            where = "none seen"
+        else:
+            x, y, _ = goal.position
+            where = f"{goal.id} at ({x:.2f}, {y:.2f}), {goal.n_views} views"
         out.print(f"{model_id}: goal 'chair' -> {where}; page {page}")
 
 
@@ -296,8 +294,8 @@ def main(argv: list[str] | None = None) -> None:
         click.echo(exc.ctx.get_help() if exc.ctx else exc.format_message())
         sys.exit(0)
     except click.UsageError as exc:
-        where = f" (kgnav {exc.ctx.command_path.split(' ', 1)[1]})" if exc.ctx and " " in \
-            exc.ctx.command_path else ""
+        path = exc.ctx.command_path if exc.ctx else "kgnav"
+        where = f" ({path})" if " " in path else ""  # name the subcommand, if any
         click.echo(f"kgnav: usage error{where}: {exc.format_message()}", err=True)
         sys.exit(2)
     except KgnavError as exc:
