@@ -254,11 +254,11 @@ def demo(out_dir: Path, worlds: int, episodes: int, steps: int, seed: int, overw
     from kgnav.export_html import export_html
 
     store_dir = out_dir / "memory"
-    existing = ModelStore(store_dir).ids()
-    if existing and not overwrite:
+    store = ModelStore(store_dir)
+    if store.ids() and not overwrite:
         raise DataError(f"{store_dir}: already holds a memory; pass --overwrite or another --out")
-    for model_id in existing:  # only the store's own model files, nothing else in the folder
-        ModelStore(store_dir).delete(model_id)
+    for model_id in store.ids():  # only the store's own model files, nothing else in the folder
+        store.delete(model_id)
     with Progress(transient=True) as bar:
         task = bar.add_task("exploring", total=worlds * episodes)
         rows = build_demo_memory(
@@ -274,7 +274,7 @@ def demo(out_dir: Path, worlds: int, episodes: int, steps: int, seed: int, overw
                       r.model_id, str(r.states), str(r.objects))
     out.print(table)
     _list_store(store_dir, as_json=False)
-    models, _ = ModelStore(store_dir).load_all()
+    models, _ = store.load_all()
     for model_id, model in models.items():
         page = export_html(model, out_dir / "html" / f"{model_id}.html")
         goal = query.goal_point(model, "chair")

@@ -35,6 +35,7 @@ import numpy as np
 from kgnav import se2
 from kgnav.errors import KgnavError
 from kgnav.model import SEES, AbstractModel
+from kgnav.relocator import unit_rows
 
 
 def _check_compatible(target: AbstractModel, source: AbstractModel) -> None:
@@ -58,8 +59,7 @@ def best_anchor(
     s_ids, s_f = source.state_features()
     if not t_ids or not s_ids:
         raise KgnavError("cannot choose an anchor: a model has no states")
-    t_n = t_f / np.maximum(np.linalg.norm(t_f, axis=1, keepdims=True), 1e-12)
-    s_n = s_f / np.maximum(np.linalg.norm(s_f, axis=1, keepdims=True), 1e-12)
+    t_n, s_n = unit_rows(t_f), unit_rows(s_f)
     best = (-np.inf, 0, 0)
     for start in range(0, len(s_ids), chunk):
         sim = t_n @ s_n[start : start + chunk].T

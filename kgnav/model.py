@@ -268,22 +268,27 @@ class AbstractModel:
                 next_o = max(next_o, num + 1)
         self._next_state, self._next_object = next_s, next_o
         self._index = _Index()
-        for n, d in self.graph.nodes(data=True):
-            if d["kind"] == "state":
-                self._index.cells.setdefault(self._cell(d["x"], d["y"]), []).append(n)
-            else:
-                self._index.by_class.setdefault(d["cls"], []).append(n)
-                self._index.object_cells.setdefault(self._object_cell(n), []).append(n)
-            for origin in d["origin"].split():
-                self._index.by_origin[origin] = n
+        for n in self.graph.nodes:
+            self._index_node(n)
+
+    def _index_node(self, n: str) -> None:
+        """Enter a node (as it is now) into the lookup structures."""
+        d = self.graph.nodes[n]
+        if d["kind"] == "state":
+            self._index.cells.setdefault(self._cell(d["x"], d["y"]), []).append(n)
+        else:
+            self._index.by_class.setdefault(d["cls"], []).append(n)
+            self._index.object_cells.setdefault(self._object_cell(n), []).append(n)
+        for origin in d["origin"].split():
+            self._index.by_origin[origin] = n
+
+    @staticmethod
+    def _grid(x: float, y: float, size: float) -> tuple[int, int]:
+        """Grid cell of side ``size``: neighbours within ``size`` lie in the 3×3 block around it."""
+        return (math.floor(x / size), math.floor(y / size)) if size > 0 else (0, 0)
 
     def _cell(self, x: float, y: float) -> tuple[int, int]:
-        tol = self._tol("pose_tol")
-        return (math.floor(x / tol), math.floor(y / tol)) if tol > 0 else (0, 0)
-
-    def origins(self, node: str) -> list[str]:
-        """Provenance of a node: ``model_id/node_id`` of every recorded node folded into it."""
-        return self.graph.nodes[node]["origin"].split()
+        return self._grid(x, y, self._tol("pose_tol"))
 
     def known_node(self, origins: str) -> str | None:
         """The node that already holds any of the space-separated ``origins``, if one does."""
@@ -304,10 +309,7 @@ class AbstractModel:
 
     def _object_cell(self, oid: str) -> tuple[str, int, int]:
         d = self.graph.nodes[oid]
-        r = self._tol("object_radius")
-        if r <= 0:
-            return (d["cls"], 0, 0)
-        return (d["cls"], math.floor(d["x"] / r), math.floor(d["y"] / r))
+        return (d["cls"], *self._grid(d["x"], d["y"], self._tol("object_radius")))
 
     def _validate_features(self, features) -> np.ndarray:
         f = np.asarray(features)
@@ -394,9 +396,7 @@ class AbstractModel:
             origin=origin or f"{self.model_id}/{sid}",
         )
         self._n_states += 1
-        self._index.cells.setdefault(self._cell(x, y), []).append(sid)
-        for o in self.graph.nodes[sid]["origin"].split():
-            self._index.by_origin[o] = sid
+        self._index_node(sid)
         episodes = self.episodes
         if episode not in episodes:
             episodes.append(episode)
@@ -406,7 +406,7 @@ class AbstractModel:
     def _nearest_object(self, cls: str, x: float, y: float) -> str | None:
         r = self._tol("object_radius")
         best, best_d = None, r
-        cx, cy = (math.floor(x / r), math.floor(y / r)) if r > 0 else (0, 0)
+        cx, cy = self._grid(x, y, r)
         for dx in (-1, 0, 1):
             for dy in (-1, 0, 1):
                 for o in self._index.object_cells.get((cls, cx + dx, cy + dy), ()):
@@ -430,10 +430,7 @@ class AbstractModel:
             n_views=0,
             origin=origin or f"{self.model_id}/{oid}",
         )
-        self._index.by_class.setdefault(cls, []).append(oid)
-        self._index.object_cells.setdefault(self._object_cell(oid), []).append(oid)
-        for o in self.graph.nodes[oid]["origin"].split():
-            self._index.by_origin[o] = oid
+        self._index_node(oid)
         return oid
 
     def _absorb_into_object(self, oid: str, xyz, n_obs: int) -> None:

@@ -29,7 +29,6 @@ from collections import Counter
 
 import networkx as nx
 
-from kgnav.errors import KgnavError
 from kgnav.model import SEES, AbstractModel, ObjectInfo
 
 #: The paper ranks candidate goal objects by views and picks the closest of this many.
@@ -120,18 +119,6 @@ def action_path(model: AbstractModel, start: str, goal: str) -> list[str] | None
     except nx.NetworkXNoPath:
         return None
     return [g.edges[u, v]["action"] for u, v in zip(nodes, nodes[1:], strict=False)]
-
-
-def nearest_state(model: AbstractModel, x: float, y: float) -> str:
-    """The state whose position is closest to ``(x, y)``."""
-    best = min(
-        model.states(),
-        key=lambda s: math.hypot(model.graph.nodes[s]["x"] - x, model.graph.nodes[s]["y"] - y),
-        default=None,
-    )
-    if best is None:
-        raise KgnavError(f"model {model.model_id!r} has no states")
-    return best
 
 
 def summary(model: AbstractModel) -> dict:

@@ -71,7 +71,8 @@ class VectorTable:
         return start
 
 
-def _unit_rows(x: np.ndarray) -> np.ndarray:
+def unit_rows(x: np.ndarray) -> np.ndarray:
+    """Rows scaled to unit L2 norm (zero rows stay zero), as float32."""
     x = np.asarray(x, dtype=np.float32)
     norms = np.linalg.norm(x, axis=-1, keepdims=True)
     return x / np.maximum(norms, 1e-12)
@@ -306,7 +307,7 @@ class Relocator:
             )
         self.remove(model.model_id)
         ids, feats = model.state_features()
-        start = self._table.append(_unit_rows(feats)) if ids else self._table.n
+        start = self._table.append(unit_rows(feats)) if ids else self._table.n
         self._owners.extend((model.model_id, s) for s in ids)
         self._rows[model.model_id] = np.arange(start, start + len(ids))
         return start if ids else None
