@@ -286,6 +286,21 @@ def demo(out_dir: Path, worlds: int, episodes: int, steps: int, seed: int, overw
         out.print(f"{model_id}: goal 'chair' -> {where}; page {page}")
 
 
+def _register() -> None:
+    from kgnav.cli_eval import eval_cmd
+
+    app.add_command(eval_cmd)
+    try:
+        from kgnav.cli_encoder import relocation_bench, train_encoder
+    except ImportError:  # pragma: no cover - the encoder module is part of the package
+        return
+    app.add_command(train_encoder)
+    app.add_command(relocation_bench)
+
+
+_register()
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point: run the CLI, mapping errors to one stderr line and an exit status."""
     try:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Collection
 
 import networkx as nx
 
@@ -47,13 +48,20 @@ def _id_order(node: str) -> tuple[int, str]:
 
 
 def goal_point(
-    model: AbstractModel, cls: str, near: tuple[float, float] = (0.0, 0.0), top_k: int = TOP_K
+    model: AbstractModel,
+    cls: str,
+    near: tuple[float, float] = (0.0, 0.0),
+    top_k: int = TOP_K,
+    exclude: Collection[str] = (),
+    min_views: int = 1,
 ) -> ObjectInfo | None:
     """The object to head for: closest to ``near`` among the ``top_k`` most-seen of ``cls``.
 
-    Returns ``None`` when the model holds no object of the class.
+    Objects in ``exclude`` (ids the caller has ruled out) or seen from fewer than ``min_views``
+    states are skipped. Returns ``None`` when no candidate is left.
     """
-    top = ranked_objects(model, cls)[:top_k]
+    ranked = ranked_objects(model, cls)
+    top = [o for o in ranked if o.id not in exclude and o.n_views >= min_views][:top_k]
     if not top:
         return None
     x, y = float(near[0]), float(near[1])

@@ -1,0 +1,242 @@
+"""Fast Marching planner on the episode map (scikit-fmm), as in Active Neural SLAM.
+
+Unexplored cells count as navigable (the paper: this is what lets the agent discover new
+space); obstacles, plus cells where the agent bumped into something, are inflated by the agent
+radius. Distances to the goal cells are computed by Fast Marching on a crop of the map around
+what is explored, the agent and the goal, and reused for a few steps unless the goal changes,
+the agent collides, leaves the crop, or the path ahead becomes blocked. The action turns the
+agent toward a short-term goal a few cells down the distance field, or moves it forward.
+
+>>> import numpy as np
+>>> from kgnav.agent.mapping import MapBuilder
+>>> from kgnav.agent.camera import Camera
+>>> m = MapBuilder(Camera(), size=120).reset()
+>>> goal = np.zeros((120, 120), bool); goal[60, 100] = True   # 2 m straight ahead
+>>> p = FMMPlanner().plan(m, (0.0, 0.0, 0.0), goal, key="demo")
+>>> p.action, round(p.distance, 2)
+('move_forward', 2.0)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import skfmm
+
+from kgnav.agent.mapping import EpisodeMap
+
+_NEIGHBOURS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
+
+
+def disc(radius_cells: int) -> np.ndarray:
+    """A filled disc structuring element of the given radius (cells)."""
+    r = max(0, int(radius_cells))
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+
+
+def fmm_distance(traversable: np.ndarray, targets: np.ndarray, clearance: float = 0.0
+                 ) -> np.ndarray:
+    """Geodesic distance in cells from every traversable cell to the nearest target cell.
+
+    Target cells read 0 and are always passable; cells that are not traversable or cannot reach
+    a target read ``inf``. With ``clearance`` (cells) > 0 the result is a travel time in which
+    cells nearer than that to a non-traversable cell are slower (down to a quarter speed), so
+    paths keep off walls and corners instead of grazing them.
+    """
+    out = np.full(traversable.shape, np.inf)
+    if not targets.any():
+        return out
+    phi = np.where(targets, -1.0, 1.0)
+    free = traversable | targets
+    try:
+        if clearance > 0:
+            room = cv2.distanceTransform(free.astype(np.uint8), cv2.DIST_L2, 3)
+            speed = np.clip(room / clearance, 0.25, 1.0)
+            d = skfmm.travel_time(np.ma.MaskedArray(phi, ~free), speed, dx=1.0)
+        else:
+            d = skfmm.distance(np.ma.MaskedArray(phi, ~free), dx=1.0)
+    except ValueError:  # no zero contour reachable
+        return out
+    vals = np.ma.filled(d.astype(float), np.inf) + 0.5
+    vals[targets] = 0.0
+    out[free] = vals[free]
+    return out
+
+
+@dataclass(frozen=True)
+class Plan:
+    """One planning step: the action, whether the agent is in the goal cells, the remaining
+    geodesic distance (m, ``inf`` if unreachable) and the short-term goal (episode frame)."""
+
+    action: str
+    reached: bool
+    distance: float
+    waypoint: tuple[float, float] | None
+
+
+class FMMPlanner:
+    """Plans on an :class:`EpisodeMap` toward a boolean goal mask of the same shape.
+
+    ``key`` identifies the goal (a new key forces replanning); ``replan_every`` bounds how many
+    steps a distance field is reused; ``lookahead`` is how many cells down the field the
+    short-term goal lies; ``turn_tolerance_deg`` is the heading error tolerated before turning.
+    """
+
+    def __init__(
+        self,
+        agent_radius: float = 0.18,
+        margin: float = 0.05,
+        lookahead: int = 8,
+        turn_tolerance_deg: float = 20.0,
+        replan_every: int = 10,
+        crop_margin: float = 2.0,
+    ):
+        self.agent_radius = float(agent_radius)
+        self.margin = float(margin)
+        self.lookahead = int(lookahead)
+        self.turn_tolerance = math.radians(turn_tolerance_deg)
+        self.replan_every = int(replan_every)
+        self.crop_margin = float(crop_margin)
+        self.reset()
+
+    def reset(self) -> None:
+        self.collisions_: np.ndarray | None = None
+        self._cache = None
+        self._dirty = True
+
+    # ------------------------------------------------------------------ map edits
+    def note_collision(self, m: EpisodeMap, pose) -> None:
+        """Mark the cells just ahead of the agent blocked: the map missed an obstacle there."""
+        if self.collisions_ is None or self.collisions_.shape != m.obstacle.shape:
+            self.collisions_ = np.zeros_like(m.obstacle)
+        x, y, t = pose
+        c, s = math.cos(t), math.sin(t)
+        pts = []
+        for f in (0.25, 0.3):  # a narrow mark: a wide one can seal a doorway once inflated
+            for lat in (-0.05, 0.05):
+                pts.append(m.to_cell(x + c * f - s * lat, y + s * f + c * lat))
+        for i, j in pts:
+            if m.inside(i, j):
+                self.collisions_[i, j] = 1
+        self._dirty = True
+
+    def _crop(self, m: EpisodeMap, agent: tuple[int, int], goal: np.ndarray, *,
+              wide: bool = False):
+        """The window planned over: around the agent and the goal (``wide``: and everything
+        explored) with a margin; Fast Marching cost grows with its area."""
+        mask = goal | m.explored.astype(bool) if wide else goal
+        rows = np.flatnonzero(mask.any(axis=1))
+        cols = np.flatnonzero(mask.any(axis=0))
+        pad = int(self.crop_margin / m.resolution)
+        i0 = min(rows.min() if rows.size else agent[0], agent[0]) - pad
+        i1 = max(rows.max() if rows.size else agent[0], agent[0]) + pad + 1
+        j0 = min(cols.min() if cols.size else agent[1], agent[1]) - pad
+        j1 = max(cols.max() if cols.size else agent[1], agent[1]) + pad + 1
+        n = m.size
+        return max(i0, 0), min(i1, n), max(j0, 0), min(j1, n)
+
+    def traversable(self, m: EpisodeMap, crop, agent: tuple[int, int], *,
+                    squeeze: bool = False) -> np.ndarray:
+        """Cells of ``crop`` the agent's centre may occupy (unexplored counts as free).
+
+        ``squeeze`` inflates obstacles by less than the agent radius: the fallback when the
+        agent is walled in by its own conservative map (a doorway closed by inflation).
+        """
+        i0, i1, j0, j1 = crop
+        occ = m.obstacle[i0:i1, j0:j1]
+        if self.collisions_ is not None:
+            occ = occ | self.collisions_[i0:i1, j0:j1]
+        pad = self.agent_radius + (-self.margin if squeeze else self.margin)
+        trav = cv2.dilate(occ, disc(math.ceil(pad / m.resolution))) == 0
+        # the agent's own cell and a little around it stay free, or it could never leave
+        ai, aj = agent[0] - i0, agent[1] - j0
+        trav[max(ai - 2, 0):ai + 3, max(aj - 2, 0):aj + 3] = True
+        return trav
+
+    def distances(self, m: EpisodeMap, crop, agent: tuple[int, int],
+                  targets: np.ndarray) -> np.ndarray:
+        """Fast Marching distances (cells) over ``crop`` to ``targets`` (crop-shaped); when
+        the agent cannot reach them, retried once on the squeezed map."""
+        dist = fmm_distance(self.traversable(m, crop, agent), targets)
+        ai, aj = agent[0] - crop[0], agent[1] - crop[2]
+        if not math.isfinite(dist[ai, aj]):
+            dist = fmm_distance(self.traversable(m, crop, agent, squeeze=True), targets)
+        return dist
+
+    # ------------------------------------------------------------------ planning
+    def plan(self, m: EpisodeMap, pose, goal: np.ndarray, key=None) -> Plan:
+        """The next action toward ``goal`` (bool mask over the map) from ``pose``."""
+        agent = m.to_cell(pose[0], pose[1])
+        if not m.inside(*agent):
+            return Plan("turn_left", False, math.inf, None)
+        c = self._cache
+        fresh = (
+            c is None
+            or self._dirty
+            or c["key"] != key
+            or c["age"] >= self.replan_every
+            or not (c["crop"][0] <= agent[0] < c["crop"][1]
+                    and c["crop"][2] <= agent[1] < c["crop"][3])
+        )
+        if not fresh:
+            i0, j0 = c["crop"][0], c["crop"][2]
+            # the old field may not cover where the agent stands now (its free patch moved)
+            fresh = not math.isfinite(c["dist"][agent[0] - i0, agent[1] - j0])
+        if not fresh:
+            path = self._descend(c["dist"], agent, c["crop"])
+            trav = self.traversable(m, c["crop"], agent)
+            fresh = any(not trav[i - i0, j - j0] for i, j in path)
+        if fresh:
+            crop = self._crop(m, agent, goal)
+            i0, i1, j0, j1 = crop
+            dist = self.distances(m, crop, agent, goal[i0:i1, j0:j1])
+            if not math.isfinite(dist[agent[0] - i0, agent[1] - j0]):
+                # the way round may leave the tight window: plan over all that is known
+                crop = self._crop(m, agent, goal, wide=True)
+                i0, i1, j0, j1 = crop
+                dist = self.distances(m, crop, agent, goal[i0:i1, j0:j1])
+            c = self._cache = {"key": key, "crop": crop, "dist": dist, "age": 0}
+            self._dirty = False
+        c["age"] += 1
+        return self._act(m, pose, agent, c)
+
+    def _descend(self, dist: np.ndarray, agent, crop) -> list[tuple[int, int]]:
+        i0, _i1, j0, _j1 = crop
+        i, j = agent[0] - i0, agent[1] - j0
+        h, w = dist.shape
+        path = []
+        for _ in range(self.lookahead):
+            best, bi, bj = dist[i, j], i, j
+            for di, dj in _NEIGHBOURS:
+                a, b = i + di, j + dj
+                if 0 <= a < h and 0 <= b < w and dist[a, b] < best:
+                    best, bi, bj = dist[a, b], a, b
+            if (bi, bj) == (i, j):
+                break
+            i, j = bi, bj
+            path.append((i + i0, j + j0))
+        return path
+
+    def _act(self, m: EpisodeMap, pose, agent, c) -> Plan:
+        i0, j0 = c["crop"][0], c["crop"][2]
+        d_here = c["dist"][agent[0] - i0, agent[1] - j0]
+        if d_here == 0.0:
+            return Plan("stop", True, 0.0, None)
+        if not math.isfinite(d_here):
+            return Plan("turn_left", False, math.inf, None)
+        path = self._descend(c["dist"], agent, c["crop"])
+        if not path:
+            return Plan("turn_left", False, float(d_here) * m.resolution, None)
+        wx, wy = m.to_xy(*path[-1])
+        err = math.atan2(wy - pose[1], wx - pose[0]) - pose[2]
+        err = math.atan2(math.sin(err), math.cos(err))
+        if err > self.turn_tolerance:
+            action = "turn_left"
+        elif err < -self.turn_tolerance:
+            action = "turn_right"
+        else:
+            action = "move_forward"
+        return Plan(action, False, float(d_here) * m.resolution, (wx, wy))

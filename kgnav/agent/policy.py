@@ -1,0 +1,198 @@
+"""Global policies: where to explore when the Abstract Model has no goal to offer.
+
+A :class:`GlobalPolicy` picks an exploration goal cell on the episode map; the agent asks it
+every ``interval`` steps (25, as the paper's global policy) or sooner when the last goal was
+reached or turned out unreachable. The default, :class:`FrontierPolicy`, heads for the frontier
+(explored free space next to unexplored space) with the best size/distance trade-off, measured
+by geodesic distance on the planner's map. Policies are registered by name like habitat-lab's
+sensors, so a learned policy can be plugged in:
+
+>>> sorted(POLICIES)[:1]
+['frontier']
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol, runtime_checkable
+
+import cv2
+import numpy as np
+
+from kgnav.agent.mapping import EpisodeMap
+from kgnav.agent.planner import FMMPlanner, fmm_distance
+from kgnav.errors import KgnavError
+
+
+@runtime_checkable
+class GlobalPolicy(Protocol):
+    """Chooses exploration goals. ``select`` returns a map cell (row, col) or None (nothing
+    left to explore)."""
+
+    name: str
+
+    def reset(self, seed: int) -> None: ...
+
+    def select(self, m: EpisodeMap, pose, goal_class: str, planner: FMMPlanner
+               ) -> tuple[int, int] | None: ...
+
+
+POLICIES: dict[str, Callable[..., GlobalPolicy]] = {}
+
+
+def register_policy(name: str):
+    """Class decorator adding a global-policy factory to :data:`POLICIES`."""
+
+    def deco(factory):
+        POLICIES[name] = factory
+        return factory
+
+    return deco
+
+
+def make_policy(name: str, **params) -> GlobalPolicy:
+    if name not in POLICIES:
+        raise KgnavError(f"unknown global policy {name!r} (known: {', '.join(sorted(POLICIES))})")
+    return POLICIES[name](**params)
+
+
+def frontiers(m: EpisodeMap, min_cells: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """Frontier clusters: (label image, cell count per label; label 0 is "not a frontier").
+
+    A frontier cell is explored, not an obstacle, and touches an unexplored cell.
+    """
+    free = (m.explored > 0) & (m.obstacle == 0)
+    unknown = (m.explored == 0).astype(np.uint8)
+    near_unknown = cv2.dilate(unknown, np.ones((3, 3), np.uint8)) > 0
+    front = (free & near_unknown).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(front, connectivity=8)
+    sizes = stats[:, cv2.CC_STAT_AREA].copy()
+    sizes[0] = 0
+    small = sizes < min_cells
+    if small.any():
+        lab[small[lab]] = 0
+        sizes[small] = 0
+    return lab, sizes
+
+
+@register_policy("frontier")
+class FrontierPolicy:
+    """Frontier-based exploration (Yamauchi 1997) with a size bonus.
+
+    Cost of a frontier cell = geodesic distance from the agent (m) − ``size_weight`` × its
+    cluster's size (cells), ignoring cells closer than ``min_distance`` (they would be reached
+    before the view changes). Deterministic: ties go to the lowest cell index.
+    """
+
+    name = "frontier"
+
+    def __init__(self, size_weight: float = 0.01, min_distance: float = 1.0,
+                 min_cells: int = 6):
+        self.size_weight = float(size_weight)
+        self.min_distance = float(min_distance)
+        self.min_cells = int(min_cells)
+
+    def reset(self, seed: int) -> None:
+        pass
+
+    def _cost(self, m: EpisodeMap, goal_class: str, lab: np.ndarray, sizes: np.ndarray,
+              dist_m: np.ndarray, crop: tuple[int, int, int, int]) -> np.ndarray:
+        """Cost of each cell of the ``crop`` window (lower is better)."""
+        return dist_m - self.size_weight * sizes[lab]
+
+    def select(self, m: EpisodeMap, pose, goal_class: str, planner: FMMPlanner
+               ) -> tuple[int, int] | None:
+        lab, sizes = frontiers(m, self.min_cells)
+        if not sizes.any():
+            return None
+        agent = m.to_cell(pose[0], pose[1])
+        if not m.inside(*agent):
+            return None
+        goal_rows = np.flatnonzero((lab > 0).any(axis=1))
+        goal_cols = np.flatnonzero((lab > 0).any(axis=0))
+        pad = int(planner.crop_margin / m.resolution)
+        n = m.size
+        crop = (max(min(goal_rows.min(), agent[0]) - pad, 0),
+                min(max(goal_rows.max(), agent[0]) + pad + 1, n),
+                max(min(goal_cols.min(), agent[1]) - pad, 0),
+                min(max(goal_cols.max(), agent[1]) + pad + 1, n))
+        i0, i1, j0, j1 = crop
+        # distances from the agent (not to it: the same on a symmetric grid)
+        src = np.zeros((i1 - i0, j1 - j0), bool)
+        src[agent[0] - i0, agent[1] - j0] = True
+        dist_m = fmm_distance(planner.traversable(m, crop, agent), src)
+        if np.isinf(dist_m[lab[i0:i1, j0:j1] > 0]).all():
+            dist_m = fmm_distance(planner.traversable(m, crop, agent, squeeze=True), src)
+        dist_m = dist_m * m.resolution
+        sub = lab[i0:i1, j0:j1]
+        ok = (sub > 0) & np.isfinite(dist_m) & (dist_m >= self.min_distance)
+        if not ok.any():
+            ok = (sub > 0) & np.isfinite(dist_m)
+            if not ok.any():
+                return None
+        cost = np.where(ok, self._cost(m, goal_class, sub, sizes, dist_m, crop), np.inf)
+        k = int(np.argmin(cost))
+        i, j = divmod(k, cost.shape[1])
+        return i + i0, j + j0
+
+
+@register_policy("semantic")
+class SemanticFrontierPolicy(FrontierPolicy):
+    """Goal-directed frontier choice on the semantic map (the SemExp*+SI analogue).
+
+    A frontier is cheaper the more the map around it (``radius`` metres) shows classes that
+    co-occur with the goal: a toilet is looked for near sinks and bathtubs. Co-occurrence is
+    ``P(goal seen | class seen)`` over the states of stored Abstract Models
+    (:func:`cooccurrence`), so the policy improves as the memory grows; without it, it is the
+    plain frontier policy.
+    """
+
+    name = "semantic"
+
+    def __init__(self, size_weight: float = 0.01, min_distance: float = 1.0,
+                 min_cells: int = 6, weight: float = 4.0, radius: float = 2.0):
+        super().__init__(size_weight, min_distance, min_cells)
+        self.weight = float(weight)
+        self.radius = float(radius)
+        self.cooccurrence_: dict[str, dict[str, float]] = {}
+
+    def fit(self, models) -> SemanticFrontierPolicy:
+        """Learn class co-occurrence from Abstract Models."""
+        self.cooccurrence_ = cooccurrence(models)
+        return self
+
+    def _cost(self, m, goal_class, lab, sizes, dist_m, crop):
+        cost = super()._cost(m, goal_class, lab, sizes, dist_m, crop)
+        related = self.cooccurrence_.get(goal_class, {})
+        if not related:
+            return cost
+        i0, i1, j0, j1 = crop
+        ev = np.zeros((i1 - i0, j1 - j0), np.float32)
+        for cls, p in related.items():
+            if cls in m.classes:
+                ev += p * (m.semantic[m.classes.index(cls), i0:i1, j0:j1] > 0)
+        k = max(1, int(self.radius / m.resolution))
+        # mean related evidence in a (2k+1)^2 window, scaled to "cells of evidence nearby"
+        near = cv2.blur(ev, (2 * k + 1, 2 * k + 1)) * (2 * k + 1)
+        return cost - self.weight * np.tanh(near / 10.0)
+
+
+def cooccurrence(models) -> dict[str, dict[str, float]]:
+    """``out[g][c]`` = share of states seeing class ``c`` that also see class ``g``."""
+    from collections import Counter
+
+    seen: Counter = Counter()
+    both: Counter = Counter()
+    for model in models:
+        g = model.graph
+        for s in model.states():
+            classes = {g.nodes[o]["cls"] for o in g.successors(s) if g.nodes[o]["kind"] == "object"}
+            for c in classes:
+                seen[c] += 1
+                for d in classes:
+                    if d != c:
+                        both[d, c] += 1
+    out: dict[str, dict[str, float]] = {}
+    for (g_cls, c), n in both.items():
+        out.setdefault(g_cls, {})[c] = n / seen[c]
+    return out

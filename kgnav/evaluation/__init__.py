@@ -1,0 +1,1 @@
+"""The benchmark: run agent variants over a split's episodes, score them, analyse failures."""

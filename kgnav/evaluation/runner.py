@@ -1,0 +1,498 @@
+"""Run agent variants over a split and write ``episodes.jsonl`` and ``summary.json``.
+
+Episode order (fixed, so results are reproducible): rounds ``r = 0, 1, ...``; round ``r`` runs
+episode ``r`` of every selected scene, scenes in index order. Variants with memory see, during a
+round, the store as it was at the round's start; at the round's end each episode's model is
+merged into the model it relocated into (or stored as a new model), in scene order. Scenes of a
+round are independent, so ``workers`` processes may run them in parallel with results identical
+to one process. Every episode is seeded from ``(seed, scene, episode)``: all variants meet the
+same segmenter noise, which makes their comparison paired.
+
+>>> cfg = EvalConfig(split="val", variants=("oracle",), scenes=1, episodes=1)
+>>> records, summary = run_eval(cfg, out=None, progress=False)
+>>> records[0]["variant"], records[0]["success"], summary["oracle"]["episodes"]
+('oracle', True, 1)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import multiprocessing as mp
+import os
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from kgnav.agent.camera import Camera
+from kgnav.agent.features import make_extractor
+from kgnav.agent.loop import AgentConfig, ObjectNavAgent
+from kgnav.agent.memory import Memory
+from kgnav.agent.oracle import OracleAgent
+from kgnav.agent.policy import cooccurrence, make_policy
+from kgnav.agent.segmenter import make_segmenter
+from kgnav.atomic import atomic_open
+from kgnav.errors import KgnavError
+from kgnav.evaluation.failures import FAILURE_CLASSES, classify
+from kgnav.evaluation.variants import VARIANTS, Variant
+from kgnav.merge import merge
+from kgnav.model import AbstractModel
+from kgnav.sim.env import ObjectNavEnv
+from kgnav.sim.episodes import SPLITS, episodes_for
+from kgnav.store import ModelStore
+
+DEFAULT_THRESHOLD = 0.3  # the paper's, for extractors without a calibrated one
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """What to run. ``scenes``: the first K scenes of the split (None: all); ``episodes``: per
+    scene (None: the split's default); ``threshold``: relocation cosine distance (None: the
+    extractor's calibrated value)."""
+
+    split: str = "val"
+    variants: tuple[str, ...] = ("ans",)
+    scenes: int | None = None
+    episodes: int | None = None
+    workers: int = 1
+    segmenter: str = "default"
+    extractor: str = "auto"
+    threshold: float | None = None
+    seed: int = 0
+    width: int = 160
+    height: int = 120
+    pre_explore_steps: int = 1500
+    max_steps: int = 500  # per episode (the task's 500; lower only for quick checks)
+    show: tuple[int, int] | None = None  # (scene, episode) to draw from above per variant
+    agent: AgentConfig = field(default_factory=AgentConfig)
+
+    def __post_init__(self):
+        if self.split not in SPLITS:
+            raise KgnavError(f"unknown split {self.split!r} (known: {', '.join(SPLITS)})")
+        for v in self.variants:
+            if v not in VARIANTS:
+                raise KgnavError(f"unknown variant {v!r} (known: {', '.join(VARIANTS)})")
+        if self.workers < 1:
+            raise KgnavError(f"workers must be at least 1, got {self.workers}")
+
+    @property
+    def scene_indices(self) -> list[int]:
+        n = len(SPLITS[self.split])
+        return list(range(min(self.scenes, n) if self.scenes else n))
+
+
+def resolve_extractor(name: str) -> str:
+    """``auto`` → the shipped learned encoder when it loads, else the OpenCV descriptor."""
+    if name != "auto":
+        return name
+    try:
+        make_extractor("kgnav-encoder")
+        return "kgnav-encoder"
+    except KgnavError:
+        return "opencv-gist"
+
+
+def episode_seed(seed: int, scene: int, episode: int) -> int:
+    return int(np.random.SeedSequence([seed, scene, episode]).generate_state(1)[0])
+
+
+# ---------------------------------------------------------------------- per-process state
+# Worker processes are forked per round, so they inherit the parent's environments and the
+# round's memory without pickling them.
+_CACHE: dict = {}
+_ROUND: dict = {}
+
+
+def _env(cfg: EvalConfig, scene: int) -> ObjectNavEnv:
+    key = ("env", cfg.split, scene, cfg.width, cfg.height, cfg.episodes, cfg.max_steps)
+    if key not in _CACHE:
+        _CACHE[key] = ObjectNavEnv(cfg.split, scene, cfg.width, cfg.height,
+                                   n_episodes=cfg.episodes, max_steps=cfg.max_steps)
+    return _CACHE[key]
+
+
+def _extractor(name: str):
+    key = ("extractor", name)
+    if key not in _CACHE:
+        _CACHE[key] = make_extractor(name)
+    return _CACHE[key]
+
+
+def _threshold(cfg: EvalConfig, extractor) -> float:
+    if cfg.threshold is not None:
+        return float(cfg.threshold)
+    return float(getattr(extractor, "threshold", DEFAULT_THRESHOLD))
+
+
+def _make_agent(cfg: EvalConfig, variant: Variant, env: ObjectNavEnv, memory: Memory | None,
+                extractor_name: str):
+    if variant.oracle:
+        return OracleAgent(env)
+    policy = make_policy(variant.policy)
+    if variant.policy == "semantic":
+        policy.cooccurrence_ = _ROUND.get("cooccurrence", {})
+    config = AgentConfig(**{**asdict(cfg.agent), "strategy": variant.strategy})
+    return ObjectNavAgent(Camera.from_env(env), make_segmenter(cfg.segmenter, cfg.seed),
+                          _extractor(extractor_name), policy=policy, memory=memory,
+                          config=config)
+
+
+# ---------------------------------------------------------------------- one episode
+@dataclass
+class Outcome:
+    record: dict
+    model: AbstractModel | None = None
+    transform: tuple[float, float, float] | None = None
+    matched: str | None = None
+
+
+def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, round_: int,
+                extractor_name: str, topdown: str | None = None) -> Outcome:
+    """One episode of ``variant``; ``topdown``: where to draw it from above (PNG)."""
+    env = _env(cfg, scene)
+    memory = _ROUND.get("memory") if variant.memory else None
+    agent = _make_agent(cfg, variant, env, memory, extractor_name)
+    seed = episode_seed(cfg.seed, scene, episode)
+    obs, info = env.reset(seed=seed, options={"episode": episode})
+    name = env.scene.name
+    agent.reset(env.goal_class, seed=seed, scene=name, episode=scene * 1000 + episode,
+                model_id=f"{name}-e{episode:03d}")
+    done = False
+    while not done:
+        obs, _r, term, trunc, info = env.step(agent.act(obs))
+        done = term or trunc
+
+    if topdown is not None:
+        _draw(env, agent, topdown)
+    reloc = agent.relocation_
+    record = {
+        "variant": variant.name,
+        "scene": name,
+        "episode": episode,
+        "episode_id": info["episode_id"],
+        "round": round_,
+        "goal": env.goal_class,
+        "success": bool(info["success"]),
+        "spl": float(info["spl"]),
+        "softspl": float(info["softspl"]),
+        "dts": float(info["dts"]),
+        "steps": int(info["steps"]),
+        "path_length": float(info["path_length"]),
+        "shortest_path_length": float(info["shortest_path_length"]),
+        "relocated": reloc is not None,
+    }
+    target_source, target_err = None, math.inf
+    if not variant.oracle:
+        objects = [t for t in agent.log_.targets if t[1] != "explore"]
+        if objects:
+            _step, target_source, tx, ty, _oid = objects[-1]
+            wx, wy = env.start_frame_to_world(tx, ty)
+            target_err = env.navigable_map().l2_to_class(wx, wy, env.goal_class)
+        record["stop_reason"] = agent.log_.stop_reason
+        record["target_source"] = target_source
+        record["target_error"] = None if math.isinf(target_err) else round(target_err, 3)
+    record["failure"] = (None if record["success"] else
+                         "Misc" if variant.oracle else
+                         classify(False, record["dts"], target_source, target_err))
+    if reloc is not None:
+        record["relocation"] = {
+            "step": reloc.step,
+            "model": reloc.model_id,
+            "distance": round(float(reloc.distance), 4),
+            "same_house": reloc.model_id.startswith(f"{name}-"),
+        }
+    if variant.learns:
+        return Outcome(record, agent.model_, reloc.transform if reloc else None,
+                       reloc.model_id if reloc else None)
+    return Outcome(record)
+
+
+def _draw(env: ObjectNavEnv, agent, path: str) -> None:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    m = getattr(agent, "map_", None)
+    if m is None:
+        env.topdown(path)
+        return
+    c = m.center * m.resolution
+    env.topdown(path, agent_map=m.explored, map_resolution=m.resolution, map_origin=(-c, -c))
+
+
+def _run_task(task) -> Outcome:
+    return run_episode(*task)
+
+
+def pre_explore(cfg: EvalConfig, scene: int, extractor_name: str) -> AbstractModel:
+    """One long frontier exploration of a house from its first episode's start: the
+    pre-explored model of ``hp``/``sp`` (the paper explores 10000 steps; here until nothing is
+    left to explore or ``cfg.pre_explore_steps``)."""
+    env = _env(cfg, scene)
+    agent = _make_agent(cfg, VARIANTS["ans"], env, None, extractor_name)
+    saved = env.max_steps
+    env.max_steps = cfg.pre_explore_steps
+    try:
+        seed = episode_seed(cfg.seed, scene, 10**6)
+        obs, _info = env.reset(seed=seed, options={"episode": 0})
+        agent.reset(None, seed=seed, scene=env.scene.name, episode=scene * 1000 + 999,
+                    model_id=f"{env.scene.name}-pre")
+        idle = 0
+        for _ in range(cfg.pre_explore_steps):
+            action = agent.act(obs)
+            idle = idle + 1 if agent._target is None else 0
+            if idle >= 12 or action == 0:  # a full turn with nothing left to explore
+                break
+            obs, _r, _term, trunc, _info = env.step(action)
+            if trunc:
+                break
+    finally:
+        env.max_steps = saved
+    return agent.model_
+
+
+def _pre_task(task) -> AbstractModel:
+    return pre_explore(*task)
+
+
+# ---------------------------------------------------------------------- scheduling
+def _map(fn: Callable, tasks: list, workers: int, bar) -> list:
+    """``[fn(t) for t in tasks]``, in forked worker processes when ``workers > 1``."""
+    if workers <= 1 or len(tasks) <= 1:
+        out = []
+        for t in tasks:
+            out.append(fn(t))
+            bar.update(1)
+        return out
+    ctx = mp.get_context("fork")
+    with ctx.Pool(min(workers, len(tasks)), initializer=_worker_init) as pool:
+        out = []
+        for r in pool.imap(fn, tasks):
+            out.append(r)
+            bar.update(1)
+        return out
+
+
+def _worker_init() -> None:
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+    except ImportError:  # pragma: no cover - torch is a dependency
+        pass
+
+
+class _NoBar:
+    def update(self, n: int) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def _bar(total: int, desc: str, progress: bool):
+    if not progress:
+        return _NoBar()
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="ep", dynamic_ncols=True)
+
+
+def _episode_count(cfg: EvalConfig) -> list[int]:
+    """Episodes per selected scene."""
+    return [len(episodes_for(cfg.split, s, cfg.episodes)) for s in cfg.scene_indices]
+
+
+def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Path | None,
+                progress: bool = True, on_round: Callable[[list[dict]], None] | None = None
+                ) -> list[dict]:
+    """All episodes of one variant, in the documented order; returns their records."""
+    scenes = cfg.scene_indices
+    counts = dict(zip(scenes, _episode_count(cfg), strict=True))
+    rounds = max(counts.values())
+    store_dir = out / "memory" / variant.name if (out is not None and variant.learns) else None
+    models: dict[str, AbstractModel] = {}
+    if variant.memory == "pre":
+        models = _pre_explored(cfg, extractor_name, out, progress)
+    if store_dir is not None:
+        _clear_store(store_dir)
+    store = ModelStore(store_dir) if store_dir is not None else None
+    bar = _bar(sum(counts.values()), variant.name, progress)
+    records: list[dict] = []
+    threshold = _threshold(cfg, _extractor(extractor_name)) if variant.memory else None
+    try:
+        for r in range(rounds):
+            _ROUND.clear()
+            if variant.memory:
+                _ROUND["memory"] = Memory(models, threshold=threshold)
+            if variant.policy == "semantic":
+                _ROUND["cooccurrence"] = cooccurrence(models.values())
+            tasks = [(cfg, variant, s, r, r, extractor_name, _topdown_path(cfg, out, variant, s, r))
+                     for s in scenes if r < counts[s]]
+            outcomes = _map(_run_task, tasks, cfg.workers, bar)
+            round_records = [o.record for o in outcomes]
+            if variant.learns:
+                for o in outcomes:  # merges in scene order: the same with any worker count
+                    changed = _absorb(models, o)
+                    if store is not None:
+                        store.save(models[changed])
+            records.extend(round_records)
+            if on_round is not None:
+                on_round(round_records)
+    finally:
+        bar.close()
+        _ROUND.clear()
+    return records
+
+
+def _topdown_path(cfg: EvalConfig, out: Path | None, variant: Variant, scene: int,
+                  episode: int) -> str | None:
+    if out is None or cfg.show is None or (scene, episode) != tuple(cfg.show):
+        return None
+    return str(out / "topdown" / f"{variant.name}_{scene:02d}_e{episode:03d}.png")
+
+
+def _absorb(models: dict[str, AbstractModel], o: Outcome) -> str:
+    """Fold an episode's model into the memory; returns the id of the model that changed."""
+    if o.matched is not None and o.matched in models:
+        models[o.matched] = merge(models[o.matched], o.model, transform=o.transform)
+        return o.matched
+    models[o.model.model_id] = o.model
+    return o.model.model_id
+
+
+def _clear_store(path: Path) -> None:
+    """A fresh run starts from an empty memory: remove the models a previous run left."""
+    if path.is_dir():
+        for f in path.glob("*.graphml"):
+            f.unlink()
+
+
+def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progress: bool
+                  ) -> dict[str, AbstractModel]:
+    """The hp/sp memory: one pre-explored model per house, built once per output directory."""
+    key = json.dumps({"split": cfg.split, "scenes": cfg.scene_indices, "seed": cfg.seed,
+                      "steps": cfg.pre_explore_steps, "extractor": extractor_name,
+                      "segmenter": cfg.segmenter, "size": [cfg.width, cfg.height]},
+                     sort_keys=True)
+    if _CACHE.get("pre_key") == key:
+        return dict(_CACHE["pre_models"])
+    store_dir = out / "memory" / "pre-explored" if out is not None else None
+    models: dict[str, AbstractModel] = {}
+    if store_dir is not None and (store_dir / "params.json").is_file():
+        if (store_dir / "params.json").read_text() == key:
+            loaded, problems = ModelStore(store_dir).load_all()
+            if not problems and len(loaded) == len(cfg.scene_indices):
+                models = loaded
+    if not models:
+        bar = _bar(len(cfg.scene_indices), "pre-explore", progress)
+        try:
+            tasks = [(cfg, s, extractor_name) for s in cfg.scene_indices]
+            for m in _map(_pre_task, tasks, cfg.workers, bar):
+                models[m.model_id] = m
+        finally:
+            bar.close()
+        if store_dir is not None:
+            _clear_store(store_dir)
+            store = ModelStore(store_dir)
+            for m in models.values():
+                store.save(m)
+            with atomic_open(store_dir / "params.json", "w") as f:
+                f.write(key)
+    _CACHE["pre_key"] = key
+    _CACHE["pre_models"] = models
+    return dict(models)
+
+
+# ---------------------------------------------------------------------- whole benchmark
+def summarize(records: Iterable[dict]) -> dict[str, dict]:
+    """Per variant: mean Success/SPL/SoftSPL/DTS, episodes, relocation rate and failures."""
+    by: dict[str, list[dict]] = {}
+    for rec in records:
+        by.setdefault(rec["variant"], []).append(rec)
+    out = {}
+    for name, recs in by.items():
+        n = len(recs)
+        reloc = [r for r in recs if r["relocated"]]
+        out[name] = {
+            "episodes": n,
+            "success": sum(r["success"] for r in recs) / n,
+            "spl": sum(r["spl"] for r in recs) / n,
+            "softspl": sum(r["softspl"] for r in recs) / n,
+            "dts": sum(r["dts"] for r in recs) / n,
+            "relocation_rate": len(reloc) / n,
+            "relocation_same_house": (sum(r["relocation"]["same_house"] for r in reloc)
+                                      / len(reloc)) if reloc else None,
+            "failures": {c: sum(r["failure"] == c for r in recs) for c in FAILURE_CLASSES},
+        }
+    return out
+
+
+def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = True
+             ) -> tuple[list[dict], dict]:
+    """Run every variant of ``cfg``; with ``out``, write ``episodes.jsonl`` (one line per
+    episode, rounds in order), ``summary.json`` (per variant) and ``config.json``.
+    Returns (records, summary)."""
+    extractor_name = resolve_extractor(cfg.extractor)
+    out_dir = Path(out) if out is not None else None
+    part = None
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        # results go to a side file first: a crash keeps what finished, and an earlier
+        # complete run stays intact until this one completes
+        part = open(out_dir / "episodes.jsonl.part", "w", encoding="utf-8")  # noqa: SIM115
+
+    def write(recs: list[dict]) -> None:
+        if part is not None:
+            for rec in recs:
+                part.write(json.dumps(rec, sort_keys=True) + "\n")
+            part.flush()
+
+    records: list[dict] = []
+    timing = {}
+    try:
+        for name in cfg.variants:
+            t0 = time.perf_counter()
+            recs = run_variant(cfg, VARIANTS[name], extractor_name, out_dir, progress, write)
+            dt = time.perf_counter() - t0
+            timing[name] = {"seconds": round(dt, 2),
+                            "episodes_per_second": round(len(recs) / dt, 4) if dt > 0 else None}
+            records.extend(recs)
+    finally:
+        if part is not None:
+            part.close()
+    summary = summarize(records)
+    for name, t in timing.items():
+        summary[name].update(t)
+    if out_dir is not None:
+        os.replace(out_dir / "episodes.jsonl.part", out_dir / "episodes.jsonl")
+        with atomic_open(out_dir / "summary.json", "w") as f:
+            json.dump(summary, f, indent=2, sort_keys=True)
+        with atomic_open(out_dir / "config.json", "w") as f:
+            json.dump({**asdict(cfg), "extractor": extractor_name}, f, indent=2, sort_keys=True)
+        write_plots(records, summary, cfg, out_dir)
+    return records, summary
+
+
+def write_plots(records: list[dict], summary: dict, cfg: EvalConfig, out_dir: Path) -> list[Path]:
+    """The figures of a run, as PNG files in ``out_dir``; returns their paths."""
+    import cv2
+
+    from kgnav.evaluation import plots
+
+    paths = [out_dir / "success_curve.png", out_dir / "failures.png"]
+    plots.success_curve(records, paths[0])
+    plots.failure_bars(summary, paths[1])
+    if cfg.show is not None:
+        scene, ep = cfg.show
+        imgs = {}
+        for name in cfg.variants:
+            f = out_dir / "topdown" / f"{name}_{scene:02d}_e{ep:03d}.png"
+            if f.is_file():
+                imgs[name] = cv2.cvtColor(cv2.imread(str(f)), cv2.COLOR_BGR2RGB)
+        pair = {k: imgs[k] for k in ("ans", "si")} if {"ans", "si"} <= imgs.keys() else imgs
+        if pair:
+            p = out_dir / f"topdown_{scene:02d}_e{ep:03d}.png"
+            plots.side_by_side(pair, p, f"{cfg.split} scene {scene}, episode {ep}")
+            paths.append(p)
+    return paths
