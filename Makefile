@@ -5,7 +5,19 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.kgnav-installed
 
-.PHONY: demo test bench lint clean
+# The main job: the with-memory ObjectNav benchmark, small by default (3 val houses x 5
+# episodes, every variant, 2 processes: a few minutes). `make demo FULL=1`: the whole val split.
+VARIANTS ?= ans,hp,sp,si,sem+si,oracle
+SCENES ?= 3
+EPISODES ?= 5
+WORKERS ?= 2
+ifdef FULL
+SIZE :=
+else
+SIZE := --scenes $(SCENES) --episodes $(EPISODES)
+endif
+
+.PHONY: demo test bench lint clean synthetic-demo
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -15,6 +27,9 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
+	$(VENV)/bin/kgnav eval --split val --variants $(VARIANTS) $(SIZE) --workers $(WORKERS) --out export/eval
+
+synthetic-demo: $(STAMP)
 	$(VENV)/bin/kgnav demo --out export/demo --overwrite
 
 test: $(STAMP)
@@ -24,9 +39,10 @@ bench: $(STAMP)
 	$(PY) bench/bench_graphml.py
 	$(PY) bench/bench_relocator.py
 	$(PY) bench/bench_sim.py
+	$(PY) bench/bench_agent.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check kgnav tests queries bench
 
 clean:
-	rm -rf $(VENV) export/demo .pytest_cache .hypothesis
+	rm -rf $(VENV) export/demo export/eval .pytest_cache .hypothesis

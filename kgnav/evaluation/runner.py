@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from kgnav import se2
 from kgnav.agent.camera import Camera
 from kgnav.agent.features import make_extractor
 from kgnav.agent.loop import AgentConfig, ObjectNavAgent
@@ -203,6 +204,7 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
             "model": reloc.model_id,
             "distance": round(float(reloc.distance), 4),
             "same_house": reloc.model_id.startswith(f"{name}-"),
+            **_relocation_error(env, reloc, agent._match_pose),
         }
     if variant.learns:
         return Outcome(record, agent.model_, reloc.transform if reloc else None,
@@ -218,6 +220,22 @@ def _draw(env: ObjectNavEnv, agent, path: str) -> None:
         return
     c = m.center * m.resolution
     env.topdown(path, agent_map=m.explored, map_resolution=m.resolution, map_origin=(-c, -c))
+
+
+def _relocation_error(env: ObjectNavEnv, reloc, at) -> dict:
+    """How far off the relocation's frame transform is, from ground truth: the error (m) of
+    the agent's own position at the match mapped into the model frame, and the heading error
+    (degrees). Models are named ``<house>-e<episode>`` (or ``<house>-pre``) and live in that
+    episode's start frame, which is how the truth is known. Empty for another house's model."""
+    house, _, tag = reloc.model_id.rpartition("-")
+    if house != env.scene.name or at is None:
+        return {}
+    ep = 0 if tag == "pre" else int(tag[1:])
+    truth = se2.compose(se2.inverse(env.episodes[ep].start), env.episode.start)
+    ex, ey = se2.apply_to_point(reloc.transform, *at)
+    tx, ty = se2.apply_to_point(truth, *at)
+    return {"error_m": round(math.hypot(ex - tx, ey - ty), 3),
+            "error_deg": round(math.degrees(se2.angle_diff(reloc.transform[2], truth[2])), 2)}
 
 
 def _run_task(task) -> Outcome:
@@ -423,9 +441,15 @@ def summarize(records: Iterable[dict]) -> dict[str, dict]:
             "relocation_rate": len(reloc) / n,
             "relocation_same_house": (sum(r["relocation"]["same_house"] for r in reloc)
                                       / len(reloc)) if reloc else None,
+            "relocation_error_m": _median([r["relocation"].get("error_m") for r in reloc]),
             "failures": {c: sum(r["failure"] == c for r in recs) for c in FAILURE_CLASSES},
         }
     return out
+
+
+def _median(values) -> float | None:
+    v = [x for x in values if x is not None]
+    return float(np.median(v)) if v else None
 
 
 def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = True
