@@ -416,6 +416,16 @@ class AbstractModel:
                         best, best_d = o, dist
         return best
 
+    def nearest_object(self, cls: str, x: float, y: float, radius: float) -> str | None:
+        """The ``cls`` object nearest to (x, y) in the plane, if within ``radius`` metres."""
+        best, best_d = None, float(radius)
+        for o in sorted(self._index.by_class.get(cls, ())):
+            d = self.graph.nodes[o]
+            dist = math.hypot(d["x"] - x, d["y"] - y)
+            if dist <= best_d:
+                best, best_d = o, dist
+        return best
+
     def _new_object_node(self, cls, xyz, n_obs: int, origin: str | None) -> str:
         oid = f"o{self._next_object}"
         self._next_object += 1

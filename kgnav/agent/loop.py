@@ -53,6 +53,8 @@ class AgentConfig:
     confirm_matches: int = 2  # agreeing matches needed to relocate (1: the paper's first)
     confirm_window: int = 10  # steps within which they must fall
     confirm_tolerance: tuple[float, float] = (0.5, 15.0)  # m, degrees between transforms
+    refine_radius: float = 1.5  # landmark pairing radius for transform refinement (0: off)
+    refine_pairs: int = 60  # most recent landmark pairs used
     map_size: int = 480
     map_resolution: float = 0.05
 
@@ -166,6 +168,7 @@ class ObjectNavAgent:
         self._match_pose: tuple[float, float] | None = None
         self._bumps = 0  # consecutive blocked forward moves
         self._candidates: list[tuple[int, str, tuple]] = []  # recent matches awaiting support
+        self._pairs: list[tuple] = []  # (episode x, y, remembered x, y, object) landmarks
         self._escape: list[str] = []  # scripted way out after repeated bumps
 
     def act(self, obs) -> int:
@@ -200,6 +203,7 @@ class ObjectNavAgent:
                                     episode=self.episode, step=self.step_)
         cur = sid
         if self.current_ is not self.model_:
+            self._refine(p.state)
             cur = self._add_to_current(p.state)
         if self._prev is not None and self._last_action is not None:
             self.model_.add_transition(self._prev[0], self._last_action, sid)
@@ -226,6 +230,40 @@ class ObjectNavAgent:
                  and se2.angle_diff(c[2][2], T[2]) <= math.radians(tol_th)]
         self._candidates.append((self.step_, model_id, tuple(T)))
         return len(agree) + 1 >= need
+
+    def _refine(self, state: AbstractState) -> None:
+        """Correct the relocation's frame transform with landmarks.
+
+        One matched view fixes the transform only as well as the two poses agree (the paper's
+        "imperfect match"). Each object seen after the match is paired with the nearest
+        remembered object of its class; every few pairs the rigid transform that best maps
+        the episode's observations onto the remembered positions (least squares, one round of
+        outlier rejection) replaces the current one, unless it moves implausibly far.
+        """
+        if self.config.refine_radius <= 0:
+            return
+        stored = self.memory.model(self.relocation_.model_id)
+        T = self.relocation_.transform
+        for d in state.detections:
+            x, y = se2.apply_to_point(T, *d.position[:2])
+            hit = stored.nearest_object(d.cls, x, y, self.config.refine_radius)
+            if hit is not None:
+                o = stored.graph.nodes[hit]
+                self._pairs.append((d.position[0], d.position[1], o["x"], o["y"], hit))
+        self._pairs = self._pairs[-self.config.refine_pairs:]
+        if len({p[4] for p in self._pairs}) < 3 or len(self._pairs) % 5:
+            return
+        pts = np.array([p[:4] for p in self._pairs], float)
+        new = _rigid_fit(pts[:, :2], pts[:, 2:])
+        res = np.hypot(*(se2.apply_to_points(new, pts[:, :2]) - pts[:, 2:]).T)
+        keep = res <= max(0.5, 2.0 * float(np.median(res)))
+        if keep.sum() >= 3:
+            new = _rigid_fit(pts[keep, :2], pts[keep, 2:])
+        at = self._match_pose or state.pose[:2]
+        moved = math.dist(se2.apply_to_point(new, *at), se2.apply_to_point(T, *at))
+        if moved <= 1.5 and se2.angle_diff(new[2], T[2]) <= math.radians(30):
+            self.relocation_ = replace(self.relocation_,
+                                       transform=tuple(float(v) for v in new))
 
     def _to_model(self, pose) -> tuple[float, float, float]:
         return se2.compose(self.relocation_.transform, pose)
@@ -427,3 +465,15 @@ class ObjectNavAgent:
         ii, jj = np.ogrid[i0:i1, j0:j1]
         mask[i0:i1, j0:j1] = (ii - i) ** 2 + (jj - j) ** 2 <= k * k
         return mask
+
+
+def _rigid_fit(src: np.ndarray, dst: np.ndarray) -> tuple[float, float, float]:
+    """The SE(2) transform minimising squared distances from mapped ``src`` to ``dst``
+    (2-D Kabsch)."""
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    a, b = src - cs, dst - cd
+    theta = math.atan2(float((a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]).sum()),
+                       float((a * b).sum()))
+    c, s = math.cos(theta), math.sin(theta)
+    t = cd - np.array([c * cs[0] - s * cs[1], s * cs[0] + c * cs[1]])
+    return float(t[0]), float(t[1]), theta
