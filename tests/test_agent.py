@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from kgnav import query
 from kgnav.agent.camera import Camera, to_frame
@@ -258,3 +260,17 @@ def test_goal_point_skips_excluded_and_rarely_seen(tiny):
     assert query.goal_point(tiny, "chair", exclude={chair.id}) is None
     assert query.goal_point(tiny, "sofa", min_views=2) is None
     assert query.goal_point(tiny, "sofa", min_views=1) is not None
+
+
+@settings(max_examples=50)
+@given(st.floats(-5, 5), st.floats(-5, 5), st.floats(-math.pi + 1e-3, math.pi - 1e-3),
+       st.integers(0, 10_000))
+def test_rigid_fit_recovers_a_transform(tx, ty, theta, seed):
+    from kgnav import se2
+    from kgnav.agent.loop import _rigid_fit
+
+    src = np.random.default_rng(seed).uniform(-4, 4, (6, 2))
+    dst = se2.apply_to_points((tx, ty, theta), src)
+    fx, fy, ft = _rigid_fit(src, dst)
+    assert fx == pytest.approx(tx, abs=1e-6) and fy == pytest.approx(ty, abs=1e-6)
+    assert se2.angle_diff(ft, theta) < 1e-6
