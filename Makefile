@@ -40,6 +40,7 @@ bench: $(STAMP)
 	$(PY) bench/bench_relocator.py
 	$(PY) bench/bench_sim.py
 	$(PY) bench/bench_agent.py
+	$(PY) bench/bench_encoder.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check kgnav tests queries bench

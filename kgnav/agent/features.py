@@ -105,6 +105,9 @@ class GistDescriptor:
 
     name = "opencv-gist"
     dim = 512
+    # relocation cosine-distance threshold calibrated by `kgnav relocation-bench` (val, seed 0,
+    # precision >= 0.99 there; 0.947 on a held-out draw): see docs/encoder.md
+    threshold = 0.1006
     GRID = (8, 6)
     ORIENTATIONS = 7
     HIST = (8, 4)

@@ -1,0 +1,298 @@
+"""``kgnav train-encoder`` and ``kgnav relocation-bench``: the learned state-feature encoder.
+
+Registered in :mod:`kgnav.cli`; usage errors raise :class:`click.UsageError` (exit 2), data
+errors :class:`~kgnav.errors.KgnavError` (exit 1), each reported as one line.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import click
+
+from kgnav.errors import KgnavError
+
+_OUT_FILE = click.Path(dir_okay=False, path_type=Path)
+_DEVICE = click.Choice(["auto", "cpu", "cuda"])
+
+
+def _device(value: str) -> str:
+    from kgnav.encoder.extractor import resolve_device
+
+    try:
+        return str(resolve_device(value))
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--device") from None
+
+
+def _writable_file(path: Path, hint: str) -> None:
+    parent = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise click.BadParameter(f"{path} is a directory", param_hint=hint)
+    if parent.exists() and not parent.is_dir():
+        raise click.BadParameter(f"{parent} is not a directory", param_hint=hint)
+    probe = parent
+    while not probe.exists():
+        probe = probe.parent
+    if not os.access(probe, os.W_OK):
+        raise click.BadParameter(f"cannot write under {probe}", param_hint=hint)
+
+
+def _one_thread(threads: int) -> None:
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+@click.command("train-encoder")
+@click.option("--out", "out", type=_OUT_FILE, required=True,
+              help="Where to write the weights (.npz).")
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0),
+              help="Seed of the initial weights and of every batch.")
+@click.option("--dim", default=128, show_default=True, type=click.IntRange(min=1, max=8192),
+              help="Feature dimension.")
+@click.option("--steps", default=2000, show_default=True, type=click.IntRange(min=1),
+              help="Optimisation steps (the learning rate decays to zero at the last).")
+@click.option("--objective", default="contrastive", show_default=True,
+              type=click.Choice(["contrastive", "autoencoder"]),
+              help="Pose-based contrastive learning, or a Taskonomy-style autoencoder.")
+@click.option("--houses-per-batch", default=8, show_default=True, type=click.IntRange(min=1),
+              help="Train houses drawn per batch.")
+@click.option("--places-per-house", default=8, show_default=True, type=click.IntRange(min=1),
+              help="Places per house per batch (each seen from 3 views).")
+@click.option("--time-budget", type=click.FloatRange(min=0, min_open=True), metavar="MIN",
+              help="Stop after this many minutes of training (checkpointed; --resume goes on).")
+@click.option("--resume", is_flag=True, help="Continue from --checkpoint.")
+@click.option("--checkpoint", type=_OUT_FILE,
+              help="Training checkpoint [default: --out with suffix .ckpt].")
+@click.option("--checkpoint-every", default=100, show_default=True,
+              type=click.IntRange(min=1), help="Steps between checkpoints.")
+@click.option("--calibrate-pairs", default=2000, show_default=True, type=click.IntRange(min=0),
+              help="Val places to calibrate the match threshold on (0: keep the paper's 0.3).")
+@click.option("--device", default="auto", show_default=True, type=_DEVICE,
+              help="auto: cuda when available, else cpu.")
+@click.option("--threads", default=1, show_default=True, type=click.IntRange(min=1),
+              help="CPU threads (results are reproducible for a given thread count).")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def train_encoder(out: Path, seed: int, dim: int, steps: int, objective: str,
+                  houses_per_batch: int, places_per_house: int, time_budget: float | None,
+                  resume: bool, checkpoint: Path | None, checkpoint_every: int,
+                  calibrate_pairs: int, device: str, threads: int, quiet: bool) -> None:
+    """Train the state-feature encoder on the train houses; write weights with metadata.
+
+    The same --seed, --steps, --dim and --objective give the same weights (CPU, same
+    --threads). After training the match threshold is calibrated on val views
+    (relocation-bench's pairs, seed 0) and stored in the weight file.
+    """
+    from tqdm import tqdm
+
+    from kgnav.encoder.train import TrainConfig, Trainer
+
+    _writable_file(out, "--out")
+    ckpt = checkpoint or out.with_suffix(".ckpt")
+    _writable_file(ckpt, "--checkpoint")
+    if resume and not ckpt.is_file():
+        raise click.BadParameter(f"no checkpoint at {ckpt} to resume from",
+                                 param_hint="--resume")
+    dev = _device(device)
+    _one_thread(threads)
+    cfg = TrainConfig(seed=seed, steps=steps, dim=dim, objective=objective,
+                      houses_per_batch=houses_per_batch, places_per_house=places_per_house)
+    trainer = Trainer(cfg, device=dev, threads=threads)
+    if resume:
+        trainer.load_checkpoint(ckpt)
+        click.echo(f"resuming {ckpt} at step {trainer.step}/{steps}", err=True)
+    with tqdm(total=steps, initial=trainer.step, desc=f"train-encoder ({objective})",
+              unit="step", disable=quiet, dynamic_ncols=True, mininterval=1.0) as bar:
+        def progress(step: int, loss: float) -> None:
+            bar.update(step - bar.n)
+            bar.set_postfix(loss=f"{loss:.3f}", refresh=False)
+
+        budget = None if time_budget is None else 60.0 * time_budget
+        trainer.fit(time_budget_s=budget, progress=progress, checkpoint=ckpt,
+                    checkpoint_every=checkpoint_every)
+    weights = trainer.export()
+    if calibrate_pairs:
+        from kgnav.encoder.extractor import LearnedEncoder
+        from kgnav.encoder.relocation import (
+            CALIBRATION_SEED,
+            TARGET_PRECISION,
+            build_pairs,
+            calibrate,
+            pair_distances,
+        )
+
+        enc = LearnedEncoder(weights, device=dev)
+        with tqdm(total=3 * calibrate_pairs, desc="calibrating on val", unit="view",
+                  disable=quiet, dynamic_ncols=True, mininterval=1.0) as bar:
+            ps = build_pairs(_sampler("val"), [enc], n_pos=calibrate_pairs,
+                             seed=CALIBRATION_SEED,
+                             progress=lambda done, total: bar.update(done - bar.n))
+        thr = calibrate(pair_distances(ps.features[enc.name], ps.pairs), ps.labels)
+        weights.meta["threshold"] = round(thr, 6)
+        weights.meta["threshold_source"] = (
+            f"calibrated: largest with precision >= {TARGET_PRECISION} on relocation-bench "
+            f"pairs of split val, {calibrate_pairs} places, seed {CALIBRATION_SEED}")
+    weights.save(out)
+    state = "done" if trainer.done else "stopped by --time-budget"
+    click.echo(f"{state} at step {trainer.step}/{steps} ({trainer.elapsed_s / 60:.1f} min of "
+               f"training); weights -> {out} (dim {dim}, threshold "
+               f"{weights.threshold:.4f}); checkpoint {ckpt}")
+    if not trainer.done:
+        click.echo(f"continue with: kgnav train-encoder --resume --out {out} --checkpoint "
+                   f"{ckpt} --seed {seed} --dim {dim} --steps {steps} --objective {objective} "
+                   f"--houses-per-batch {houses_per_batch} --places-per-house "
+                   f"{places_per_house}", err=True)
+
+
+def _sampler(split: str):
+    from kgnav.encoder.views import ViewSampler
+    from kgnav.sim.episodes import SPLITS, load_scene_of
+
+    return ViewSampler([load_scene_of(split, k) for k in range(len(SPLITS[split]))])
+
+
+def _parse_extractors(ctx, param, value: str) -> list[str]:
+    names = [v.strip() for v in value.split(",") if v.strip()]
+    if not names:
+        raise click.BadParameter("name at least one extractor")
+    if len(set(names)) != len(names):
+        raise click.BadParameter(f"an extractor is named twice in {value!r}")
+    return names
+
+
+def _parse_thresholds(ctx, param, values: tuple[str, ...]) -> dict[str, float]:
+    out = {}
+    for v in values:
+        name, _, num = v.partition("=")
+        try:
+            t = float(num)
+        except ValueError:
+            t = float("nan")
+        if not name or not 0 < t <= 2:
+            raise click.BadParameter(f"expected NAME=DISTANCE with 0 < DISTANCE <= 2, got {v!r}")
+        out[name] = t
+    return out
+
+
+@click.command("relocation-bench")
+@click.option("--split", default="val", show_default=True, type=click.Choice(["val", "train"]),
+              help="Houses to draw views from (val: never seen in training).")
+@click.option("--out", "out_dir", required=True,
+              type=click.Path(file_okay=False, path_type=Path),
+              help="Directory for relocation.json and relocation_roc.png.")
+@click.option("--extractors", default="kgnav-encoder,opencv-gist", show_default=True,
+              callback=_parse_extractors, help="Comma-separated extractor names.")
+@click.option("--pairs", default=1000, show_default=True, type=click.IntRange(min=2),
+              help="Places, i.e. positive pairs (each comes with 6 negative pairs).")
+@click.option("--seed", default=1, show_default=True, type=click.IntRange(min=0),
+              help="Seed of the views (the shipped threshold was calibrated on seed 0).")
+@click.option("--weights", type=click.Path(dir_okay=False, path_type=Path),
+              help="Encoder weight file for kgnav-encoder [default: the shipped weights].")
+@click.option("--threshold", "thresholds", multiple=True, callback=_parse_thresholds,
+              metavar="NAME=DISTANCE",
+              help="Report NAME at this threshold (default: its stored threshold, else the one "
+                   "calibrated on these pairs). Repeatable.")
+@click.option("--target-precision", default=0.99, show_default=True,
+              type=click.FloatRange(0, 1, min_open=True), help="Precision the calibration keeps.")
+@click.option("--write-threshold", is_flag=True,
+              help="Store kgnav-encoder's threshold calibrated here into --weights.")
+@click.option("--device", default="auto", show_default=True, type=_DEVICE)
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def relocation_bench(split: str, out_dir: Path, extractors: list[str], pairs: int, seed: int,
+                     weights: Path | None, thresholds: dict[str, float], target_precision: float,
+                     write_threshold: bool, device: str, quiet: bool) -> None:
+    """Precision/recall of state matching on same-place vs other-place view pairs; ROC."""
+    from rich.console import Console
+    from rich.table import Table
+    from tqdm import tqdm
+
+    from kgnav.agent.features import make_extractor
+    from kgnav.encoder.extractor import NAME as ENCODER
+    from kgnav.encoder.plot import plot_roc
+    from kgnav.encoder.relocation import KINDS, build_pairs, evaluate
+    from kgnav.encoder.views import NEG_DIST, NEG_TURN, POS_DIST, POS_TURN
+
+    if out_dir.exists() and not out_dir.is_dir():
+        raise click.BadParameter(f"{out_dir} is not a directory", param_hint="--out")
+    if write_threshold and (weights is None or ENCODER not in extractors):
+        raise click.UsageError(f"--write-threshold needs --weights and {ENCODER} in --extractors")
+    unknown = [k for k in thresholds if k not in extractors]
+    if unknown:
+        raise click.BadParameter(f"{unknown[0]!r} is not in --extractors",
+                                 param_hint="--threshold")
+    dev = _device(device)
+    exts = []
+    for name in extractors:
+        params = {"weights": weights, "device": dev} if name == ENCODER else {}
+        try:
+            exts.append(make_extractor(name, **params))
+        except KgnavError as exc:
+            if "unknown feature extractor" in str(exc):
+                raise click.BadParameter(str(exc), param_hint="--extractors") from None
+            raise
+    _one_thread(1)
+    with tqdm(total=3 * pairs, desc=f"rendering {split} views", unit="view", disable=quiet,
+              dynamic_ncols=True, mininterval=1.0) as bar:
+        ps = build_pairs(_sampler(split), exts, n_pos=pairs, seed=seed,
+                         progress=lambda done, total: bar.update(done - bar.n))
+    results = {}
+    for e in exts:
+        if e.name in thresholds:
+            thr, src = thresholds[e.name], "--threshold"
+        elif getattr(e, "threshold", None) is not None:
+            thr = float(e.threshold)
+            src = e.meta.get("threshold_source", "stored") if hasattr(e, "meta") else \
+                "the extractor's default"
+        else:
+            thr, src = None, ""
+        results[e.name] = {"dim": e.dim, **evaluate(ps, e.name, thr, src, target_precision)}
+    report = {
+        "format": "kgnav-relocation-bench",
+        "version": 1,
+        "split": split,
+        "seed": seed,
+        "places": pairs,
+        "houses": ps.scene_names,
+        "pairs": ps.counts(),
+        "target_precision": target_precision,
+        "definitions": {
+            "positive": f"same house, <= {POS_DIST} m and <= {round(POS_TURN * 57.2958)} deg",
+            "negative": f"other house, or > {NEG_DIST} m or > {round(NEG_TURN * 57.2958)} deg",
+            "match": "cosine distance < threshold",
+            "calibrated_threshold": f"largest with pair precision >= {target_precision}",
+            "kinds": list(KINDS),
+        },
+        "extractors": results,
+    }
+    out_dir.mkdir(parents=True, exist_ok=True)
+    from kgnav.atomic import atomic_open
+
+    with atomic_open(out_dir / "relocation.json", "w") as fh:
+        json.dump(report, fh, indent=1)
+    plot_roc(results, out_dir / "relocation_roc.png",
+             title=f"relocation on {split}: {pairs} places, seed {seed}")
+    if write_threshold:
+        from kgnav.encoder.weights import set_threshold
+
+        set_threshold(weights, results[ENCODER]["calibrated_threshold"],
+                      f"calibrated: largest with precision >= {target_precision} on "
+                      f"relocation-bench pairs of split {split}, {pairs} places, seed {seed}")
+    con = Console(highlight=False, soft_wrap=True)
+    n_pos = ps.counts()["positive"]
+    table = Table("extractor", "dim", "threshold", "precision", "recall", "AUC", "ms/frame",
+                  title=f"relocation on {split}: {n_pos} positive, {len(ps.pairs) - n_pos} "
+                        "negative pairs")
+    for name, r in results.items():
+        table.add_row(name, str(r["dim"]), f"{r['threshold']:.4f}", f"{r['precision']:.4f}",
+                      f"{r['recall']:.4f}", f"{r['auc']:.4f}", f"{r['ms_per_frame_batched']:.3f}")
+    con.print(table)
+    for name, r in results.items():
+        rt = r["retrieval"]
+        con.print(f"{name}: calibrated threshold {r['calibrated_threshold']:.4f} (recall "
+                  f"{r['calibrated']['recall']:.4f}); nearest-neighbour relocation precision "
+                  f"{rt['precision']:.4f}, recall {rt['recall']:.4f}, wrong house "
+                  f"{rt['wrong_house']}")
+    con.print(f"wrote {out_dir / 'relocation.json'} and {out_dir / 'relocation_roc.png'}")
