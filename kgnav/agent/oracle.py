@@ -12,10 +12,8 @@ import math
 
 import numpy as np
 
-from kgnav.agent.planner import fmm_distance
+from kgnav.agent.planner import descend, fmm_distance, steer
 from kgnav.model import ACTIONS
-
-_NEIGHBOURS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
 
 
 class OracleAgent:
@@ -53,23 +51,10 @@ class OracleAgent:
             i, j = nav.snap(x, y)
         except ValueError:
             return ACTIONS.index("turn_left")
-        h, w = f.shape
-        for _ in range(self.lookahead):
-            best, bi, bj = f[i, j], i, j
-            for di, dj in _NEIGHBOURS:
-                a, b = i + di, j + dj
-                if 0 <= a < h and 0 <= b < w and f[a, b] < best:
-                    best, bi, bj = f[a, b], a, b
-            if (bi, bj) == (i, j):
-                break
-            i, j = bi, bj
+        path = descend(f, i, j, self.lookahead)
+        if path:
+            i, j = path[-1]
         wx, wy = nav.to_world(i, j)
         if math.hypot(wx - x, wy - y) < 1e-6:
             return ACTIONS.index("stop" if np.isfinite(f[i, j]) else "turn_left")
-        err = math.atan2(wy - y, wx - x) - theta
-        err = math.atan2(math.sin(err), math.cos(err))
-        if err > self.turn_tolerance:
-            return ACTIONS.index("turn_left")
-        if err < -self.turn_tolerance:
-            return ACTIONS.index("turn_right")
-        return ACTIONS.index("move_forward")
+        return ACTIONS.index(steer((x, y, theta), (wx, wy), self.turn_tolerance))

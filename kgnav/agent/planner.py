@@ -66,6 +66,36 @@ def fmm_distance(traversable: np.ndarray, targets: np.ndarray, clearance: float 
     return out
 
 
+def descend(field: np.ndarray, i: int, j: int, steps: int) -> list[tuple[int, int]]:
+    """Up to ``steps`` cells of steepest descent of ``field`` from cell (i, j), over the
+    8-neighbourhood; stops early at a local minimum. The start cell is not included."""
+    h, w = field.shape
+    path = []
+    for _ in range(steps):
+        best, bi, bj = field[i, j], i, j
+        for di, dj in _NEIGHBOURS:
+            a, b = i + di, j + dj
+            if 0 <= a < h and 0 <= b < w and field[a, b] < best:
+                best, bi, bj = field[a, b], a, b
+        if (bi, bj) == (i, j):
+            break
+        i, j = bi, bj
+        path.append((i, j))
+    return path
+
+
+def steer(pose, waypoint: tuple[float, float], tolerance: float) -> str:
+    """The action toward ``waypoint`` from ``pose`` (x, y, theta): turn when the heading error
+    exceeds ``tolerance`` (radians), else move forward."""
+    err = math.atan2(waypoint[1] - pose[1], waypoint[0] - pose[0]) - pose[2]
+    err = math.atan2(math.sin(err), math.cos(err))
+    if err > tolerance:
+        return "turn_left"
+    if err < -tolerance:
+        return "turn_right"
+    return "move_forward"
+
+
 @dataclass(frozen=True)
 class Plan:
     """One planning step: the action, whether the agent is in the goal cells, the remaining
@@ -123,7 +153,7 @@ class FMMPlanner:
                 self.collisions_[i, j] = 1
         self._dirty = True
 
-    def _crop(self, m: EpisodeMap, agent: tuple[int, int], goal: np.ndarray, *,
+    def window(self, m: EpisodeMap, agent: tuple[int, int], goal: np.ndarray, *,
               wide: bool = False):
         """The window planned over: around the agent and the goal (``wide``: and everything
         explored) with a margin; Fast Marching cost grows with its area."""
@@ -190,12 +220,12 @@ class FMMPlanner:
             trav = self.traversable(m, c["crop"], agent)
             fresh = any(not trav[i - i0, j - j0] for i, j in path)
         if fresh:
-            crop = self._crop(m, agent, goal)
+            crop = self.window(m, agent, goal)
             i0, i1, j0, j1 = crop
             dist = self.distances(m, crop, agent, goal[i0:i1, j0:j1])
             if not math.isfinite(dist[agent[0] - i0, agent[1] - j0]):
                 # the way round may leave the tight window: plan over all that is known
-                crop = self._crop(m, agent, goal, wide=True)
+                crop = self.window(m, agent, goal, wide=True)
                 i0, i1, j0, j1 = crop
                 dist = self.distances(m, crop, agent, goal[i0:i1, j0:j1])
             c = self._cache = {"key": key, "crop": crop, "dist": dist, "age": 0}
@@ -204,21 +234,9 @@ class FMMPlanner:
         return self._act(m, pose, agent, c)
 
     def _descend(self, dist: np.ndarray, agent, crop) -> list[tuple[int, int]]:
-        i0, _i1, j0, _j1 = crop
-        i, j = agent[0] - i0, agent[1] - j0
-        h, w = dist.shape
-        path = []
-        for _ in range(self.lookahead):
-            best, bi, bj = dist[i, j], i, j
-            for di, dj in _NEIGHBOURS:
-                a, b = i + di, j + dj
-                if 0 <= a < h and 0 <= b < w and dist[a, b] < best:
-                    best, bi, bj = dist[a, b], a, b
-            if (bi, bj) == (i, j):
-                break
-            i, j = bi, bj
-            path.append((i + i0, j + j0))
-        return path
+        i0, j0 = crop[0], crop[2]
+        path = descend(dist, agent[0] - i0, agent[1] - j0, self.lookahead)
+        return [(i + i0, j + j0) for i, j in path]
 
     def _act(self, m: EpisodeMap, pose, agent, c) -> Plan:
         i0, j0 = c["crop"][0], c["crop"][2]
@@ -231,12 +249,5 @@ class FMMPlanner:
         if not path:
             return Plan("turn_left", False, float(d_here) * m.resolution, None)
         wx, wy = m.to_xy(*path[-1])
-        err = math.atan2(wy - pose[1], wx - pose[0]) - pose[2]
-        err = math.atan2(math.sin(err), math.cos(err))
-        if err > self.turn_tolerance:
-            action = "turn_left"
-        elif err < -self.turn_tolerance:
-            action = "turn_right"
-        else:
-            action = "move_forward"
-        return Plan(action, False, float(d_here) * m.resolution, (wx, wy))
+        return Plan(steer(pose, (wx, wy), self.turn_tolerance), False,
+                    float(d_here) * m.resolution, (wx, wy))

@@ -108,14 +108,7 @@ class FrontierPolicy:
         agent = m.to_cell(pose[0], pose[1])
         if not m.inside(*agent):
             return None
-        goal_rows = np.flatnonzero((lab > 0).any(axis=1))
-        goal_cols = np.flatnonzero((lab > 0).any(axis=0))
-        pad = int(planner.crop_margin / m.resolution)
-        n = m.size
-        crop = (max(min(goal_rows.min(), agent[0]) - pad, 0),
-                min(max(goal_rows.max(), agent[0]) + pad + 1, n),
-                max(min(goal_cols.min(), agent[1]) - pad, 0),
-                min(max(goal_cols.max(), agent[1]) + pad + 1, n))
+        crop = planner.window(m, agent, lab > 0)
         i0, i1, j0, j1 = crop
         # distances from the agent (not to it: the same on a symmetric grid)
         src = np.zeros((i1 - i0, j1 - j0), bool)
