@@ -10,28 +10,19 @@ Target: at least 100 steps/s at 160x120 for the memory-less agent.
 
 from __future__ import annotations
 
-import os
+import argparse
+import time
+from collections import defaultdict
 
-for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
-    os.environ.setdefault(_v, "1")
-if hasattr(os, "sched_setaffinity"):
-    try:
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    except OSError:
-        pass
+import _one_core  # noqa: F401  (must come before numpy)
+from _table import print_table
 
-import argparse  # noqa: E402
-import time  # noqa: E402
-from collections import defaultdict  # noqa: E402
-
-from _table import print_table  # noqa: E402
-
-from kgnav.agent.camera import Camera  # noqa: E402
-from kgnav.agent.features import make_extractor  # noqa: E402
-from kgnav.agent.loop import ObjectNavAgent  # noqa: E402
-from kgnav.agent.segmenter import make_segmenter  # noqa: E402
-from kgnav.errors import KgnavError  # noqa: E402
-from kgnav.sim import ObjectNavEnv  # noqa: E402
+from kgnav.agent.camera import Camera
+from kgnav.agent.features import make_extractor
+from kgnav.agent.loop import ObjectNavAgent
+from kgnav.agent.segmenter import make_segmenter
+from kgnav.errors import KgnavError
+from kgnav.sim import ObjectNavEnv
 
 TIMES: dict[str, float] = defaultdict(float)
 

@@ -10,26 +10,17 @@ are rendered from the val houses; each timing is the best of ``--repeats`` runs 
 
 from __future__ import annotations
 
-import os
+import argparse
+import time
 
-for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
-    os.environ.setdefault(_v, "1")
-if hasattr(os, "sched_setaffinity"):
-    try:
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    except OSError:
-        pass
+import _one_core  # noqa: F401  (must come before numpy)
+import numpy as np
+import torch
+from _table import print_table
 
-import argparse  # noqa: E402
-import time  # noqa: E402
-
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
-from _table import print_table  # noqa: E402
-
-from kgnav.agent.features import make_extractor  # noqa: E402
-from kgnav.encoder.views import ViewSampler  # noqa: E402
-from kgnav.sim.episodes import load_scene_of  # noqa: E402
+from kgnav.agent.features import make_extractor
+from kgnav.encoder.views import ViewSampler
+from kgnav.sim.episodes import load_scene_of
 
 
 def frames(n: int, seed: int = 0) -> np.ndarray:

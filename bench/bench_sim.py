@@ -9,22 +9,14 @@ Pins the process to one core and single-threaded BLAS before numpy is imported.
 
 from __future__ import annotations
 
+import argparse
 import os
+import time
 
-for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
-    os.environ.setdefault(_v, "1")
-if hasattr(os, "sched_setaffinity"):
-    try:
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    except OSError:
-        pass
+import _one_core  # noqa: F401  (must come before numpy)
+import numpy as np
 
-import argparse  # noqa: E402
-import time  # noqa: E402
-
-import numpy as np  # noqa: E402
-
-from kgnav.sim import (  # noqa: E402
+from kgnav.sim import (
     Episode,
     ObjectInstance,
     ObjectNavEnv,
