@@ -340,11 +340,12 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
     threshold = _threshold(cfg, _extractor(extractor_name)) if variant.memory else None
     try:
         for r in range(rounds):
-            _ROUND.clear()
-            if variant.memory:
-                _ROUND["memory"] = Memory(models, threshold=threshold)
-            if variant.policy == "semantic":
-                _ROUND["cooccurrence"] = cooccurrence(models.values())
+            if r == 0 or variant.learns:  # pre-explored memories never change: index once
+                _ROUND.clear()
+                if variant.memory:
+                    _ROUND["memory"] = Memory(models, threshold=threshold)
+                if variant.policy == "semantic":
+                    _ROUND["cooccurrence"] = cooccurrence(models.values())
             tasks = [(cfg, variant, s, r, r, extractor_name, _topdown_path(cfg, out, variant, s, r))
                      for s in scenes if r < counts[s]]
             outcomes = _map(_run_task, tasks, cfg.workers, bar)
