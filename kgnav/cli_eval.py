@@ -58,7 +58,7 @@ def _show(ctx, param, value: str | None) -> tuple[int, int] | None:
               help="State features: kgnav-encoder, opencv-gist, or auto (the encoder if it "
                    "loads).")
 @click.option("--threshold", type=click.FloatRange(0.0, 2.0), default=None,
-              help="Relocation cosine-distance threshold (default: the extractor's calibrated "
+              help="Relocation cosine-distance threshold (default: the extractor's loop "
                    "one).")
 @click.option("--pre-explore-steps", type=click.IntRange(min=10), default=1500,
               show_default=True, help="Budget of the hp/sp pre-exploration per house.")

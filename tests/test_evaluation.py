@@ -94,7 +94,8 @@ def test_si_relocates_in_later_rounds_and_ans_never(tmp_path):
     assert summary["ans"]["relocation_rate"] == 0
     si = [r for r in recs if r["variant"] == "si"]
     assert not si[0]["relocated"]  # nothing stored yet
-    assert any(r["relocated"] for r in si[1:])
+    # matched the stored model (a match the landmarks refuted is recorded as undone)
+    assert any(r["relocated"] or r.get("undone") for r in si[1:])
     assert all(r["relocation"]["same_house"] for r in si if r["relocated"])
 
 

@@ -55,6 +55,11 @@ class AgentConfig:
     confirm_tolerance: tuple[float, float] = (0.5, 15.0)  # m, degrees between transforms
     refine_radius: float = 1.5  # landmark pairing radius for transform refinement (0: off)
     refine_pairs: int = 60  # most recent landmark pairs used
+    verify_checks: int = 15  # landmark checks before a relocation may be undone (0: never)
+    verify_support: float = 0.25  # undo it when fewer checks than this share find their class
+    merge_support: float = 0.5  # at the episode's end, merge into the matched model only above
+    novel_goal_views: int = 4  # views a goal the memory never saw needs where it has looked
+    known_area: float = 1.5  # m: the memory "has looked" within this of its states
     map_size: int = 480
     map_resolution: float = 0.05
 
@@ -94,6 +99,9 @@ class Relocation:
     state_id: str
     distance: float
     transform: tuple[float, float, float]  # episode frame -> model frame
+    at: tuple[float, float] | None = None  # agent position at the match, episode frame
+    checked: int = 0  # detections mapped where the stored model knows some object
+    supported: int = 0  # ... of which found a remembered object of their own class
 
 
 @dataclass
@@ -112,6 +120,7 @@ class EpisodeLog:
     targets: list[tuple[int, str, float, float, str | None]] = field(default_factory=list)
     rejected: list[str] = field(default_factory=list)
     stop_reason: str | None = None
+    undone: list[Relocation] = field(default_factory=list)  # relocations landmarks refuted
 
 
 class ObjectNavAgent:
@@ -202,12 +211,13 @@ class ObjectNavAgent:
         sid = self.model_.add_state(p.state.features, pose, p.state.detections,
                                     episode=self.episode, step=self.step_)
         cur = sid
-        if self.current_ is not self.model_:
+        if self.current_ is not self.model_ and self._verify(p.state):
             self._refine(p.state)
             cur = self._add_to_current(p.state)
         if self._prev is not None and self._last_action is not None:
             self.model_.add_transition(self._prev[0], self._last_action, sid)
-            if cur is not None and self._prev[1] is not None:
+            if (self.current_ is not self.model_ and cur is not None
+                    and self._prev[1] is not None):
                 self.current_.add_transition(self._prev[1], self._last_action, cur)
         self._prev = (sid, cur)
         if self.current_ is self.model_:
@@ -223,13 +233,50 @@ class ObjectNavAgent:
         if need <= 1:
             return True
         window = self.config.confirm_window
-        tol_xy, tol_th = self.config.confirm_tolerance
         self._candidates = [c for c in self._candidates if self.step_ - c[0] < window]
-        agree = [c for c in self._candidates
-                 if c[1] == model_id and math.dist(c[2][:2], T[:2]) <= tol_xy
-                 and se2.angle_diff(c[2][2], T[2]) <= math.radians(tol_th)]
+        agree = [c for c in self._candidates if c[1] == model_id and self._agree(c[2], T)]
         self._candidates.append((self.step_, model_id, tuple(T)))
         return len(agree) + 1 >= need
+
+    def _agree(self, a, b) -> bool:
+        tol_xy, tol_th = self.config.confirm_tolerance
+        return (math.dist(a[:2], b[:2]) <= tol_xy
+                and se2.angle_diff(a[2], b[2]) <= math.radians(tol_th))
+
+    def _verify(self, state: AbstractState) -> bool:
+        """Check the relocation against landmarks; undo it when they refute it.
+
+        Each detection mapped into the stored model's frame where that model knows some object
+        nearby is a check; it supports the relocation when one of those objects has its class.
+        A wrong match (a look-alike room elsewhere, a rotated twin) places the episode's objects
+        among unrelated ones, and merging it at the episode's end would corrupt the stored model
+        for every later episode. Returns whether the relocation stands.
+        """
+        r, need = self.config.refine_radius, self.config.verify_checks
+        if r <= 0:
+            return True
+        reloc = self.relocation_
+        xy, cls = self._landmarks
+        if len(cls):
+            for d in state.detections:
+                x, y = se2.apply_to_point(reloc.transform, *d.position[:2])
+                near = np.hypot(xy[:, 0] - x, xy[:, 1] - y) <= r
+                if near.any():
+                    reloc.checked += 1
+                    reloc.supported += bool((cls[near] == d.cls).any())
+        if need <= 0 or reloc.checked < need:
+            return True
+        if reloc.supported >= self.config.verify_support * reloc.checked:
+            return True
+        self.log_.undone.append(reloc)
+        self.relocation_ = None
+        self.current_ = self.model_
+        self._seen_here = set(self.model_.objects())
+        self._prev = (self._prev[0], self._prev[0]) if self._prev else None
+        self._pairs, self._candidates, self._match_pose = [], [], None
+        self.log_.rejected = []  # object ids of the merged model, meaningless now
+        self._target = None
+        return False
 
     def _refine(self, state: AbstractState) -> None:
         """Correct the relocation's frame transform with landmarks.
@@ -262,8 +309,27 @@ class ObjectNavAgent:
         at = self._match_pose or state.pose[:2]
         moved = math.dist(se2.apply_to_point(new, *at), se2.apply_to_point(T, *at))
         if moved <= 1.5 and se2.angle_diff(new[2], T[2]) <= math.radians(30):
-            self.relocation_ = replace(self.relocation_,
-                                       transform=tuple(float(v) for v in new))
+            self.relocation_.transform = tuple(float(v) for v in new)
+
+    def _doubtful(self) -> set[str]:
+        """Goal-class objects of the merged model that only this episode has seen, where the
+        stored model has been before, and that are not yet seen from ``novel_goal_views``
+        states: the memory looked there and saw no such thing, so one more glimpse is
+        likelier a segmenter false positive than a goal."""
+        if self.relocation_ is None or self.config.novel_goal_views <= self.config.min_goal_views:
+            return set()
+        g, prefix = self.current_.graph, f"{self.model_.model_id}/"
+        out = set()
+        for o in self.current_._index.by_class.get(self.goal, ()):
+            d = g.nodes[o]
+            if d["n_views"] >= self.config.novel_goal_views:
+                continue
+            if not all(s.startswith(prefix) for s in d["origin"].split()):
+                continue  # remembered
+            gap = np.hypot(self._walked[:, 0] - d["x"], self._walked[:, 1] - d["y"])
+            if len(gap) and gap.min() <= self.config.known_area:
+                out.add(o)
+        return out
 
     def _to_model(self, pose) -> tuple[float, float, float]:
         return se2.compose(self.relocation_.transform, pose)
@@ -283,10 +349,14 @@ class ObjectNavAgent:
             return
         stored = self.memory.model(m.model_id)
         T = se2.anchor_transform(stored.pose(m.state_id), state.pose)
+        if any(u.model_id == m.model_id and self._agree(u.transform, T)
+               for u in self.log_.undone):
+            return  # refuted already
         if not self._confirmed(m.model_id, T):
             return
         self.relocation_ = Relocation(self.step_, m.model_id, m.state_id, m.distance,
-                                      tuple(float(v) for v in T))
+                                      tuple(float(v) for v in T),
+                                      (float(state.pose[0]), float(state.pose[1])))
         self.current_ = merge(stored, self.model_, transform=T)
         # objects of the merged model that this episode perceived: those merged from model_
         prefix = f"{self.model_.model_id}/"
@@ -297,6 +367,25 @@ class ObjectNavAgent:
         self._prev = (sid, self.current_.known_node(f"{prefix}{sid}"))
         self._match_pose = state.pose[:2]
         self._target = None  # re-decide with the knowledge just gained
+        nodes = stored.graph.nodes
+        self._walked = np.array([(nodes[n]["x"], nodes[n]["y"]) for n in stored.states()],
+                                float).reshape(-1, 2)
+        objs = list(stored.objects())
+        self._landmarks = (np.array([(nodes[o]["x"], nodes[o]["y"]) for o in objs],
+                                    float).reshape(-1, 2),
+                           np.array([nodes[o]["cls"] for o in objs], dtype=object))
+
+    def mergeable(self) -> Relocation | None:
+        """The relocation to merge this episode's model with at its end, or None to store it
+        as a new model: a relocation that stood in the episode but that landmarks supported
+        only weakly would misplace a whole episode in the stored model for good."""
+        r = self.relocation_
+        if r is None:
+            return None
+        need = self.config.verify_checks
+        if need > 0 and r.checked >= need and r.supported < self.config.merge_support * r.checked:
+            return None
+        return r
 
     # ------------------------------------------------------------------ 3. reasoning
     @property
@@ -412,7 +501,7 @@ class ObjectNavAgent:
             return None
         near = pose[:2] if self.relocation_ is None else self._to_model(pose)[:2]
         info = query.goal_point(model, self.goal, near, self.config.top_k,
-                                exclude=self.log_.rejected,
+                                exclude=set(self.log_.rejected) | self._doubtful(),
                                 min_views=self.config.min_goal_views)
         if info is None:
             return None
@@ -433,12 +522,13 @@ class ObjectNavAgent:
         if sid is None or self.goal is None:
             return None
         g = model.graph
-        best = None
+        best, doubtful = None, self._doubtful()
         for o, edges in g.adj[sid].items():
             d = g.nodes[o]
             if d["kind"] != "object" or d["cls"] != self.goal:
                 continue
-            if d["n_views"] < self.config.min_goal_views or o in self.log_.rejected:
+            if (d["n_views"] < self.config.min_goal_views or o in self.log_.rejected
+                    or o in doubtful):
                 continue
             dist = min(e.get("distance", math.inf) for e in edges.values())
             if best is None or dist < best[0]:

@@ -25,6 +25,11 @@ from kgnav.encoder.net import ConvEncoder, downscale, preprocess, to_tensor
 from kgnav.encoder.weights import EncoderWeights, load_weights
 
 NAME = "kgnav-encoder"
+# The agent's relocation threshold for the shipped weights: precision 0.973, recall 0.45 per view
+# pair on the calibration draw (seed 0), against 0.99 / 0.08 at ``threshold``. In the loop a
+# match must also be confirmed by a second one and survive the landmark check, which removes
+# most of the look-alike matches this admits (docs/encoder.md, "Thresholds in the loop").
+LOOP_THRESHOLD = 0.1
 
 
 def resolve_device(device: str = "auto") -> torch.device:
@@ -51,7 +56,9 @@ class LearnedEncoder:
         ``"auto"`` (GPU when present), ``"cpu"`` or ``"cuda"``.
 
     Attributes: ``name``, ``dim``, ``threshold`` (the calibrated cosine-distance below which two
-    states match, from the weight file), ``meta`` (the weight file's metadata).
+    states match, from the weight file), ``loop_threshold`` (the looser one the agent relocates
+    with: the weight file's ``loop_threshold`` metadata, else :data:`LOOP_THRESHOLD`), ``meta``
+    (the weight file's metadata).
     """
 
     name = NAME
@@ -62,6 +69,7 @@ class LearnedEncoder:
         self.arch = w.arch
         self.dim = w.arch.dim
         self.threshold = w.threshold
+        self.loop_threshold = float(w.meta.get("loop_threshold", LOOP_THRESHOLD))
         self.meta = w.meta
         self.device = resolve_device(device)
         net = ConvEncoder(w.arch, batchnorm=False)

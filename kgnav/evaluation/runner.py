@@ -125,7 +125,9 @@ def _extractor(name: str):
 def _threshold(cfg: EvalConfig, extractor) -> float:
     if cfg.threshold is not None:
         return float(cfg.threshold)
-    return float(getattr(extractor, "threshold", DEFAULT_THRESHOLD))
+    # an extractor may name a looser threshold for the loop, where matches are also confirmed
+    return float(getattr(extractor, "loop_threshold",
+                         getattr(extractor, "threshold", DEFAULT_THRESHOLD)))
 
 
 def _make_agent(cfg: EvalConfig, variant: Variant, env: ObjectNavEnv, memory: Memory | None,
@@ -193,22 +195,34 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
             wx, wy = env.start_frame_to_world(tx, ty)
             target_err = env.navigable_map().l2_to_class(wx, wy, env.goal_class)
         record["stop_reason"] = agent.log_.stop_reason
+        record["memory_goal_step"] = next((t[0] for t in objects if t[1] == "memory"), None)
         record["target_source"] = target_source
         record["target_error"] = None if math.isinf(target_err) else round(target_err, 3)
     record["failure"] = (None if record["success"] else
                          "Misc" if variant.oracle else
                          classify(False, record["dts"], target_source, target_err))
+    if not variant.oracle and agent.log_.undone:
+        record["undone"] = [{"step": u.step, "model": u.model_id, "checked": u.checked,
+                             "supported": u.supported,
+                             "same_house": u.model_id.startswith(f"{name}-"),
+                             **_relocation_error(env, u, u.at)}
+                            for u in agent.log_.undone]
     if reloc is not None:
         record["relocation"] = {
             "step": reloc.step,
             "model": reloc.model_id,
             "distance": round(float(reloc.distance), 4),
             "same_house": reloc.model_id.startswith(f"{name}-"),
+            "checked": reloc.checked,
+            "supported": reloc.supported,
             **_relocation_error(env, reloc, agent._match_pose),
         }
     if variant.learns:
-        return Outcome(record, agent.model_, reloc.transform if reloc else None,
-                       reloc.model_id if reloc else None)
+        into = agent.mergeable()
+        if reloc is not None:
+            record["relocation"]["merged"] = into is not None
+        return Outcome(record, agent.model_, into.transform if into else None,
+                       into.model_id if into else None)
     return Outcome(record)
 
 
