@@ -327,8 +327,8 @@ def test_landmarks_that_agree_keep_a_relocation(env):
 def test_landmarks_that_disagree_undo_a_relocation_and_block_it(env):
     agent, stored = _relocated_agent(env, verify_checks=5)
     # where the memory saw a chair and a bed, this episode sees a toilet and a sink
-    wrong = AbstractState(_unit(1), (0.5, 0.0, 0.0),
-                          (Detection("toilet", (1.5, 1.0, 0.5)), Detection("sink", (1.5, -1.0, 0.5))))
+    wrong = AbstractState(_unit(1), (0.5, 0.0, 0.0), (Detection("toilet", (1.5, 1.0, 0.5)),
+                                                      Detection("sink", (1.5, -1.0, 0.5))))
     assert agent._verify(wrong)  # 2 checks: too few to judge
     assert agent._verify(wrong)
     assert not agent._verify(wrong)  # 6 checks, none supported
