@@ -174,7 +174,6 @@ class ObjectNavAgent:
         self._target: Target | None = None
         self._explore_age = 0
         self._best = (math.inf, 0)  # closest approach to the object target, and when
-        self._match_pose: tuple[float, float] | None = None
         self._bumps = 0  # consecutive blocked forward moves
         self._candidates: list[tuple[int, str, tuple]] = []  # recent matches awaiting support
         self._pairs: list[tuple] = []  # (episode x, y, remembered x, y, object) landmarks
@@ -252,7 +251,7 @@ class ObjectNavAgent:
         among unrelated ones, and merging it at the episode's end would corrupt the stored model
         for every later episode. Returns whether the relocation stands.
         """
-        r, need = self.config.refine_radius, self.config.verify_checks
+        r = self.config.refine_radius
         if r <= 0:
             return True
         reloc = self.relocation_
@@ -264,16 +263,14 @@ class ObjectNavAgent:
                 if near.any():
                     reloc.checked += 1
                     reloc.supported += bool((cls[near] == d.cls).any())
-        if need <= 0 or reloc.checked < need:
-            return True
-        if reloc.supported >= self.config.verify_support * reloc.checked:
+        if not self._refuted(reloc, self.config.verify_support):
             return True
         self.log_.undone.append(reloc)
         self.relocation_ = None
         self.current_ = self.model_
         self._seen_here = set(self.model_.objects())
         self._prev = (self._prev[0], self._prev[0]) if self._prev else None
-        self._pairs, self._candidates, self._match_pose = [], [], None
+        self._pairs, self._candidates = [], []
         self.log_.rejected = []  # object ids of the merged model, meaningless now
         self._target = None
         return False
@@ -306,7 +303,7 @@ class ObjectNavAgent:
         keep = res <= max(0.5, 2.0 * float(np.median(res)))
         if keep.sum() >= 3:
             new = _rigid_fit(pts[keep, :2], pts[keep, 2:])
-        at = self._match_pose or state.pose[:2]
+        at = self.relocation_.at
         moved = math.dist(se2.apply_to_point(new, *at), se2.apply_to_point(T, *at))
         if moved <= 1.5 and se2.angle_diff(new[2], T[2]) <= math.radians(30):
             self.relocation_.transform = tuple(float(v) for v in new)
@@ -365,7 +362,6 @@ class ObjectNavAgent:
             if any(s.startswith(prefix) for s in self.current_.graph.nodes[o]["origin"].split())
         }
         self._prev = (sid, self.current_.known_node(f"{prefix}{sid}"))
-        self._match_pose = state.pose[:2]
         self._target = None  # re-decide with the knowledge just gained
         nodes = stored.graph.nodes
         self._walked = np.array([(nodes[n]["x"], nodes[n]["y"]) for n in stored.states()],
@@ -380,12 +376,14 @@ class ObjectNavAgent:
         as a new model: a relocation that stood in the episode but that landmarks supported
         only weakly would misplace a whole episode in the stored model for good."""
         r = self.relocation_
-        if r is None:
-            return None
-        need = self.config.verify_checks
-        if need > 0 and r.checked >= need and r.supported < self.config.merge_support * r.checked:
+        if r is None or self._refuted(r, self.config.merge_support):
             return None
         return r
+
+    def _refuted(self, r: Relocation, share: float) -> bool:
+        """Enough landmark checks (``verify_checks``), and fewer than ``share`` support ``r``."""
+        need = self.config.verify_checks
+        return need > 0 and r.checked >= need and r.supported < share * r.checked
 
     # ------------------------------------------------------------------ 3. reasoning
     @property
@@ -512,7 +510,7 @@ class ObjectNavAgent:
         if info.id in self._seen_here:
             return Target("episode", xy, info.id)
         lo, hi = self.config.soft_radius_bounds
-        d = math.dist(self._match_pose or pose[:2], xy)
+        d = math.dist(self.relocation_.at if self.relocation_ else pose[:2], xy)
         return Target("memory", xy, info.id, min(max(self.config.soft_radius_factor * d, lo), hi))
 
     def _live_goal(self, p: Percept) -> Target | None:

@@ -202,21 +202,10 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
                          "Misc" if variant.oracle else
                          classify(False, record["dts"], target_source, target_err))
     if not variant.oracle and agent.log_.undone:
-        record["undone"] = [{"step": u.step, "model": u.model_id, "checked": u.checked,
-                             "supported": u.supported,
-                             "same_house": u.model_id.startswith(f"{name}-"),
-                             **_relocation_error(env, u, u.at)}
-                            for u in agent.log_.undone]
+        record["undone"] = [_relocation_fields(env, u) for u in agent.log_.undone]
     if reloc is not None:
-        record["relocation"] = {
-            "step": reloc.step,
-            "model": reloc.model_id,
-            "distance": round(float(reloc.distance), 4),
-            "same_house": reloc.model_id.startswith(f"{name}-"),
-            "checked": reloc.checked,
-            "supported": reloc.supported,
-            **_relocation_error(env, reloc, agent._match_pose),
-        }
+        record["relocation"] = {"distance": round(float(reloc.distance), 4),
+                                **_relocation_fields(env, reloc)}
     if variant.learns:
         into = agent.mergeable()
         if reloc is not None:
@@ -234,6 +223,15 @@ def _draw(env: ObjectNavEnv, agent, path: str) -> None:
         return
     c = m.center * m.resolution
     env.topdown(path, agent_map=m.explored, map_resolution=m.resolution, map_origin=(-c, -c))
+
+
+def _relocation_fields(env: ObjectNavEnv, reloc) -> dict:
+    """What ``episodes.jsonl`` says of a relocation, kept or undone: when and into which
+    model, whether that model is of this house, its landmark support and its error."""
+    return {"step": reloc.step, "model": reloc.model_id,
+            "same_house": reloc.model_id.startswith(f"{env.scene.name}-"),
+            "checked": reloc.checked, "supported": reloc.supported,
+            **_relocation_error(env, reloc, reloc.at)}
 
 
 def _relocation_error(env: ObjectNavEnv, reloc, at) -> dict:
