@@ -12,6 +12,20 @@ from kgnav.synthetic import SyntheticWorld
 DIM = 64
 
 
+@pytest.fixture
+def cli(capsys):
+    """Run ``kgnav ARGS...`` in-process; returns (exit code, stdout, stderr)."""
+    from kgnav.cli import main
+
+    def run(*args):
+        with pytest.raises(SystemExit) as exc:
+            main([str(a) for a in args])
+        out, err = capsys.readouterr()
+        return exc.value.code, out, err
+
+    return run
+
+
 @pytest.fixture(scope="session")
 def world() -> SyntheticWorld:
     return SyntheticWorld(seed=3, feature_dim=DIM)

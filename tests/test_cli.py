@@ -4,11 +4,9 @@ import sys
 
 import pytest
 
-from kgnav.cli import main
-
 
 def run(*args):
-    """Run the CLI in-process; return (exit code, stdout, stderr)."""
+    """Run the CLI in a subprocess (as a user would); returns the CompletedProcess."""
     return subprocess.run([sys.executable, "-m", "kgnav.cli", *map(str, args)],
                           capture_output=True, text=True)
 
@@ -23,29 +21,22 @@ def files(tmp_path, world):
     return tmp_path, a, b, pa, pb
 
 
-def _in_process(capsys, *args):
-    with pytest.raises(SystemExit) as exc:
-        main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return exc.value.code, out, err
-
-
-def test_inspect_json(capsys, files):
+def test_inspect_json(cli, files):
     _, a, _, pa, _ = files
-    code, out, err = _in_process(capsys, "inspect", pa, "--json")
+    code, out, err = cli("inspect", pa, "--json")
     assert code == 0, err
     info = json.loads(out)
     assert info["states"] == a.n_states and info["model_id"] == a.model_id
-    code, out, _ = _in_process(capsys, "inspect", pa)
+    code, out, _ = cli("inspect", pa)
     assert code == 0 and a.model_id in out and "class inventory" in out
 
 
-def test_query_json(capsys, files):
+def test_query_json(cli, files):
     from kgnav import query
 
     _, a, _, pa, _ = files
     cls = next(iter(query.class_inventory(a)))
-    code, out, err = _in_process(capsys, "query", pa, "--goal", cls, "--near", "1,-2", "--json")
+    code, out, err = cli("query", pa, "--goal", cls, "--near", "1,-2", "--json")
     assert code == 0, err
     res = json.loads(out)
     expect = query.goal_point(a, cls, near=(1.0, -2.0))
@@ -53,21 +44,21 @@ def test_query_json(capsys, files):
     assert len(res["ranking"]) == len(query.ranked_objects(a, cls))
 
 
-def test_merge_auto_and_explicit(capsys, files):
+def test_merge_auto_and_explicit(cli, files):
     from kgnav import AbstractModel, best_anchor, merge
 
     tmp, a, b, pa, pb = files
     out_path = tmp / "m.graphml"
-    code, out, err = _in_process(capsys, "merge", pa, pb, "-o", out_path)
+    code, out, err = cli("merge", pa, pb, "-o", out_path)
     assert code == 0, err
     ta, sb, _ = best_anchor(a, b)
     assert AbstractModel.load(out_path) == merge(a, b, anchor=(ta, sb))
-    code, _, err = _in_process(capsys, "merge", pa, pb, "-o", out_path, "--anchor", "s3:s4")
+    code, _, err = cli("merge", pa, pb, "-o", out_path, "--anchor", "s3:s4")
     assert code == 0, err
     assert AbstractModel.load(out_path) == merge(a, b, anchor=("s3", "s4"))
 
 
-def test_store_ls(capsys, tmp_path, files):
+def test_store_ls(cli, tmp_path, files):
     from kgnav import ModelStore
 
     _, a, b, _, _ = files
@@ -75,7 +66,7 @@ def test_store_ls(capsys, tmp_path, files):
     store.save(a)
     store.save(b)
     (tmp_path / "mem" / "broken.graphml").write_text("<graphml")
-    code, out, err = _in_process(capsys, "store", "ls", tmp_path / "mem", "--json")
+    code, out, err = cli("store", "ls", tmp_path / "mem", "--json")
     assert code == 0
     listing = json.loads(out)
     assert sorted(r["model_id"] for r in listing["models"]) == sorted([a.model_id, b.model_id])

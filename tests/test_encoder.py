@@ -234,24 +234,6 @@ def test_exported_weights_match_the_training_network():
 
 
 # ---------------------------------------------------------------------- the command
-@pytest.fixture
-def cli(monkeypatch, capsys):
-    """Run a command through kgnav.cli.main, as it will be registered there."""
-    from kgnav import cli as kcli
-    from kgnav.cli_encoder import relocation_bench, train_encoder
-
-    monkeypatch.setitem(kcli.app.commands, "train-encoder", train_encoder)
-    monkeypatch.setitem(kcli.app.commands, "relocation-bench", relocation_bench)
-
-    def run(*args):
-        with pytest.raises(SystemExit) as exc:
-            kcli.main([str(a) for a in args])
-        out, err = capsys.readouterr()
-        return exc.value.code, out, err
-
-    return run
-
-
 SMALL = ("--dim", "8", "--houses-per-batch", "2", "--places-per-house", "2", "--quiet",
          "--calibrate-pairs", "0")
 

@@ -126,22 +126,6 @@ def test_evaluate_reports_everything(pairset):
 
 
 # ---------------------------------------------------------------------- the command
-@pytest.fixture
-def cli(monkeypatch, capsys):
-    from kgnav import cli as kcli
-    from kgnav.cli_encoder import relocation_bench
-
-    monkeypatch.setitem(kcli.app.commands, "relocation-bench", relocation_bench)
-
-    def run(*args):
-        with pytest.raises(SystemExit) as exc:
-            kcli.main([str(a) for a in args])
-        out, err = capsys.readouterr()
-        return exc.value.code, out, err
-
-    return run
-
-
 def test_relocation_bench_writes_json_and_png(tmp_path, cli):
     out_dir = tmp_path / "bench"
     code, out, err = cli("relocation-bench", "--split", "val", "--out", out_dir, "--pairs", "11",
