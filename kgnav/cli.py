@@ -288,8 +288,10 @@ def demo(out_dir: Path, worlds: int, episodes: int, steps: int, seed: int, overw
 
 def _register() -> None:
     from kgnav.cli_eval import eval_cmd
+    from kgnav.cli_scenes import scenes
 
     app.add_command(eval_cmd)
+    app.add_command(scenes)
     try:
         from kgnav.cli_encoder import relocation_bench, train_encoder
     except ImportError:  # pragma: no cover - the encoder module is part of the package

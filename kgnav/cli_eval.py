@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -12,6 +13,7 @@ from rich.table import Table
 from kgnav.agent.segmenter import SEGMENTER_PRESETS
 from kgnav.evaluation.failures import FAILURE_CLASSES
 from kgnav.evaluation.variants import VARIANTS
+from kgnav.sim.episodes import SPLITS
 
 _ABBREV = {"Last Mile": "LM", "Hallucination": "Hal", "Detection": "Det",
            "Exploration": "Exp", "Misc": "Misc"}
@@ -39,8 +41,32 @@ def _show(ctx, param, value: str | None) -> tuple[int, int] | None:
     return scene, ep
 
 
+def _noise(ctx, param, value: str | None) -> tuple[float, float]:
+    """``actuation=K,odometry=S`` (either part may be left out) -> (K, S)."""
+    if not value or value == "none":
+        return 0.0, 0.0
+    out = {"actuation": 0.0, "odometry": 0.0}
+    for part in value.split(","):
+        k, _, v = part.partition("=")
+        k = k.strip()
+        if k not in out:
+            raise click.BadParameter(f"expected actuation=K,odometry=S, got {value!r}", ctx, param)
+        try:
+            out[k] = float(v)
+        except ValueError:
+            raise click.BadParameter(f"{k} needs a number, got {v!r}", ctx, param) from None
+        if not out[k] >= 0:
+            raise click.BadParameter(f"{k} must be >= 0, got {v!r}", ctx, param)
+    return out["actuation"], out["odometry"]
+
+
 @click.command("eval")
-@click.option("--split", type=click.Choice(["val", "train"]), default="val", show_default=True)
+@click.option("--split", type=click.Choice(list(SPLITS)), default="val", show_default=True,
+              help="Built-in houses: train/val (Matterport3D scale), train-small/val-small "
+                   "(the first, small generator).")
+@click.option("--scenes-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Run your own houses instead of --split: a directory written by "
+                   "'kgnav scenes generate'.")
 @click.option("--variants", callback=_variants, default="ans", show_default=True,
               help=f"Comma-separated: {', '.join(VARIANTS)}.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
@@ -49,7 +75,8 @@ def _show(ctx, param, value: str | None) -> tuple[int, int] | None:
 @click.option("--scenes", type=click.IntRange(min=1), default=None,
               help="Run only the first K scenes of the split (default: all).")
 @click.option("--episodes", type=click.IntRange(min=1), default=None,
-              help="Episodes per scene (default: the split's, 20 for val).")
+              help="Episodes per scene (default: the split's, 60 for val; all of a "
+                   "--scenes-dir).")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
               help="Processes; results are identical to one.")
 @click.option("--segmenter", type=click.Choice(sorted(SEGMENTER_PRESETS)), default="default",
@@ -64,20 +91,24 @@ def _show(ctx, param, value: str | None) -> tuple[int, int] | None:
               show_default=True, help="Budget of the hp/sp pre-exploration per house.")
 @click.option("--show", callback=_show, default=None, metavar="SCENE:EPISODE",
               help="Draw this episode from above for every variant (default: 0:LAST).")
+@click.option("--noise", callback=_noise, default=None, metavar="actuation=K,odometry=S",
+              help="Motion noise (K scales Gaussian 2.5 cm / 1 cm / 1 deg per move, 2 deg per "
+                   "turn) and pose-sensor noise (S m and S deg per step). Off by default, as "
+                   "in ObjectNav.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--quiet", is_flag=True, help="No progress bars.")
-def eval_cmd(split, variants, out_dir, scenes, episodes, workers, segmenter, extractor,
-             threshold, pre_explore_steps, show, seed, quiet) -> None:
+def eval_cmd(split, scenes_dir, variants, out_dir, scenes, episodes, workers, segmenter,
+             extractor, threshold, pre_explore_steps, show, noise, seed, quiet) -> None:
     """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
     from kgnav.evaluation.runner import EvalConfig, run_eval
-    from kgnav.sim.episodes import DEFAULT_EPISODES_PER_SCENE
 
-    if show is None:
-        show = (0, (episodes or DEFAULT_EPISODES_PER_SCENE[split]) - 1)
-    cfg = EvalConfig(split=split, variants=variants, scenes=scenes, episodes=episodes,
+    cfg = EvalConfig(split=split, scenes_dir=None if scenes_dir is None else str(scenes_dir),
+                     variants=variants, scenes=scenes, episodes=episodes,
                      workers=workers, segmenter=segmenter, extractor=extractor,
                      threshold=threshold, seed=seed, pre_explore_steps=pre_explore_steps,
-                     show=show)
+                     show=show, actuation_noise=noise[0], odometry_noise=noise[1])
+    if show is None:  # the first house's last episode
+        cfg = replace(cfg, show=(0, len(cfg.source.episodes(0, episodes)) - 1))
     _records, summary = run_eval(cfg, out_dir, progress=not quiet)
     print_summary(summary)
     click.echo(f"wrote {out_dir / 'episodes.jsonl'}, {out_dir / 'summary.json'} and plots")
@@ -100,3 +131,12 @@ def print_summary(summary: dict) -> None:
     if not console.is_terminal:  # a log file or pipe: do not squeeze the table to 80 columns
         console = Console(highlight=False, width=140)
     console.print(table)
+    paired = {n: s["vs_ans"] for n, s in summary.items() if "vs_ans" in s}
+    if paired:
+        t2 = Table("variant", "pairs", "Success − ans [95 % CI]", "SPL − ans [95 % CI]",
+                   title="Paired difference against ans (same episodes; bootstrap interval)")
+        for name, d in paired.items():
+            t2.add_row(name, str(d["success"]["pairs"]),
+                       *(f"{d[m]['diff']:+.3f} [{d[m]['low']:+.3f}, {d[m]['high']:+.3f}]"
+                         for m in ("success", "spl")))
+        console.print(t2)

@@ -29,7 +29,7 @@ TURN_AROUND = [3] * 12  # twelve right turns of 30 degrees: a full look around
 
 @pytest.fixture(scope="module")
 def env():
-    return ObjectNavEnv("val", 0)
+    return ObjectNavEnv("val-small", 0)
 
 
 def _walk(env, actions, episode=0):

@@ -19,7 +19,7 @@ REQUIRED = {"variant", "scene", "episode", "goal", "success", "spl", "softspl", 
 
 
 def _quick(**kw) -> EvalConfig:
-    base = dict(split="val", scenes=2, episodes=2, max_steps=120, extractor="opencv-gist",
+    base = dict(split="val-small", scenes=2, episodes=2, max_steps=120, extractor="opencv-gist",
                 pre_explore_steps=150)
     return EvalConfig(**{**base, **kw})
 
@@ -104,8 +104,8 @@ def test_pre_explored_variants_relocate_from_the_first_episode(tmp_path):
     recs, summary = run_eval(cfg, tmp_path, progress=False)
     assert summary["hp"]["relocation_rate"] > 0 and summary["sp"]["relocation_rate"] > 0
     models, _ = ModelStore(tmp_path / "memory" / "pre-explored").load_all()
-    assert list(models) == ["val_00-pre"]
-    assert models["val_00-pre"].n_states > 50
+    assert list(models) == ["val-small_00-pre"]
+    assert models["val-small_00-pre"].n_states > 50
 
 
 def test_cli_eval_writes_results_and_rejects_bad_arguments(tmp_path, capsys):

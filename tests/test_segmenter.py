@@ -36,7 +36,7 @@ def frames():
     """A dozen rendered frames of a validation house (scene name, rgb, depth, semantic)."""
     from kgnav.sim import ObjectNavEnv
 
-    env = ObjectNavEnv(split="val", scene=0)
+    env = ObjectNavEnv(split="val-small", scene=0)
     obs, info = env.reset(seed=0)
     out = []
     for a in (1, 1, 2, 1, 3, 3, 1, 1, 2, 2, 1, 3):

@@ -60,9 +60,10 @@ def test_forced_room_count(n):
 
 
 def test_split_layout_and_classes():
-    assert len(SPLITS["val"]) == 11 and len(SPLITS["train"]) == 20
-    val = load_split("val")
-    assert [s.name for s in val] == [f"val_{i:02d}" for i in range(11)]
+    assert len(SPLITS["val-small"]) == 11 and len(SPLITS["train-small"]) == 20
+    val = load_split("val-small")
+    assert [s.name for s in val] == [f"val-small_{i:02d}" for i in range(11)]
+    assert {s.generator for s in val} == {"house-v1"}
     present = set().union(*(s.classes_present() for s in val))
     assert len(present) >= 20
     assert set(OBJECTNAV_CLASSES) <= present and set(STABLE_CLASSES) <= present
@@ -71,7 +72,7 @@ def test_split_layout_and_classes():
     # several instances of a class exist somewhere
     assert any(len(s.objects_of("chair")) > 1 for s in val)
     # the cached copy loads back identical
-    assert load_split("val") == val
+    assert load_split("val-small") == val
 
 
 def test_save_load_round_trip(tmp_path):

@@ -543,11 +543,16 @@ class ObjectNavAgent:
         r = self.config.stop_distance if t.is_object else self.config.explore_radius
         if t.source == "memory" and self._soft and t.stage == "area":
             r = max(r, t.radius)
-        i, j = m.to_cell(*t.point)
-        n = m.size
         k = int(math.ceil(r / m.resolution))
-        mask = np.zeros((n, n), bool)
-        i0, i1, j0, j1 = max(i - k, 0), min(i + k + 1, n), max(j - k, 0), min(j + k + 1, n)
+        i, j = m.to_cell(*t.point)
+        # a goal beyond what the agent has mapped (a remembered object rooms away) must be
+        # on the map, or the planner could not head for it
+        pad = k + int(self.planner.crop_margin / m.resolution)
+        if m.cover(i - pad, i + pad + 1, j - pad, j + pad + 1, limit=self.map_builder.max_size):
+            i, j = m.to_cell(*t.point)
+        H, W = m.shape
+        mask = np.zeros((H, W), bool)
+        i0, i1, j0, j1 = max(i - k, 0), min(i + k + 1, H), max(j - k, 0), min(j + k + 1, W)
         if i0 >= i1 or j0 >= j1:
             return mask
         ii, jj = np.ogrid[i0:i1, j0:j1]

@@ -1,26 +1,34 @@
 """``MapBuilder``: depth + pose (+ segmentation) → the allocentric episode map.
 
 The map lives in the episode frame (the pose observation's frame: the start pose is (0, 0, 0))
-at 5 cm per cell, ``size × size`` cells centred on the start (480 × 480 = 24 m square, as Active
-Neural SLAM and SemExp). Channels:
+at 5 cm per cell. It starts as ``size × size`` cells centred on the start (480 × 480 = 24 m
+square, as Active Neural SLAM and SemExp) and **grows** when the agent's sensor range reaches
+its edge, so no reachable goal is ever off the map however large the house (a Matterport3D
+house can be 40 m across); planning stays bounded because the planner works on windows.
+Channels:
 
 * ``obstacle``: cells holding a depth point within the obstacle height band (above the floor,
   below the agent's height; floor and ceiling points are not obstacles);
 * ``explored``: cells inside the camera's field of view up to the first obstacle along each
   image column (the free space the agent has seen) plus every obstacle cell;
 * ``semantic[c]``: per class, how many segmented pixels (subsampled) landed in the cell: an
-  evidence count, fused over time like the other channels.
+  evidence count, fused over time like the other channels;
+* ``bumped``: cells where the agent collided with something the map missed (the planner's).
 
-Rows are y, columns x: cell ``(i, j)`` has centre ``((j - c + 0.5) * res, (i - c + 0.5) * res)``
-with ``c = size // 2``.
+Rows are y, columns x: cell ``(i, j)`` has centre ``((j - oj + 0.5) * res, (i - oi + 0.5) * res)``
+where ``origin = (oi, oj)`` is the cell holding the episode start. Growing shifts ``origin`` and
+increments ``generation``; whoever caches cell indices compares the generation.
 
 >>> from kgnav.agent.camera import Camera
->>> mb = MapBuilder(Camera(), size=100)
+>>> mb = MapBuilder(Camera(), size=240)
 >>> m = mb.reset()
 >>> depth = np.full((120, 160), 5.0, np.float32)
 >>> m = mb.update(depth, (0.0, 0.0, 0.0))
 >>> bool(m.explored[m.to_cell(2.0, 0.0)]), bool(m.explored[m.to_cell(-2.0, 0.0)])
 (True, False)
+>>> m = mb.update(depth, (30.0, 0.0, 0.0))     # far beyond the first 12 m square: it grows
+>>> m.shape[1] > 240, bool(m.explored[m.to_cell(32.0, 0.0)]), m.generation
+(True, True, 1)
 """
 
 from __future__ import annotations
@@ -37,45 +45,93 @@ from kgnav.classes import OBJECT_CLASSES
 
 @dataclass
 class EpisodeMap:
-    """The fused episode map (see the module docstring). Arrays are (size, size)."""
+    """The fused episode map (see the module docstring). Arrays are (H, W)."""
 
     obstacle: np.ndarray  # uint8 0/1 (uint8 so OpenCV can draw into it in place)
     explored: np.ndarray  # uint8 0/1
-    semantic: np.ndarray  # uint16 (n_classes, size, size)
+    semantic: np.ndarray  # uint16 (n_classes, H, W)
     resolution: float
     classes: tuple[str, ...] = OBJECT_CLASSES
+    origin: tuple[int, int] | None = None  # cell of the episode start; default: the centre
+    bumped: np.ndarray | None = None  # uint8 0/1, same shape
+    generation: int = 0  # bumped on every growth: cell indices held elsewhere are stale
+
+    def __post_init__(self):
+        if self.origin is None:
+            self.origin = (self.obstacle.shape[0] // 2, self.obstacle.shape[1] // 2)
+        if self.bumped is None:
+            self.bumped = np.zeros_like(self.obstacle)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.obstacle.shape
 
     @property
     def size(self) -> int:
-        return self.obstacle.shape[0]
+        """The longer side in cells."""
+        return max(self.obstacle.shape)
 
     @property
-    def center(self) -> int:
-        return self.size // 2
+    def corner(self) -> tuple[float, float]:
+        """Episode-frame (x, y) of the map's lower-left corner (cell (0, 0)'s corner)."""
+        return -self.origin[1] * self.resolution, -self.origin[0] * self.resolution
 
     def to_cell(self, x: float, y: float) -> tuple[int, int]:
         """Cell (row, col) of episode-frame point (x, y); may lie outside the map."""
-        c, r = self.center, self.resolution
-        return int(math.floor(y / r)) + c, int(math.floor(x / r)) + c
+        (oi, oj), r = self.origin, self.resolution
+        return int(math.floor(y / r)) + oi, int(math.floor(x / r)) + oj
 
     def to_xy(self, i: float, j: float) -> tuple[float, float]:
         """Episode-frame centre of cell (row i, col j)."""
-        c, r = self.center, self.resolution
-        return (j - c + 0.5) * r, (i - c + 0.5) * r
+        (oi, oj), r = self.origin, self.resolution
+        return (j - oj + 0.5) * r, (i - oi + 0.5) * r
 
     def inside(self, i: int, j: int) -> bool:
-        return 0 <= i < self.size and 0 <= j < self.size
+        return 0 <= i < self.obstacle.shape[0] and 0 <= j < self.obstacle.shape[1]
 
     def class_mask(self, cls: str, min_count: int = 1) -> np.ndarray:
         """Cells with at least ``min_count`` evidence of class ``cls``."""
         return self.semantic[self.classes.index(cls)] >= min_count
+
+    def cover(self, i0: int, i1: int, j0: int, j1: int, chunk: int = 120,
+              limit: int | None = None) -> bool:
+        """Grow the map so that rows ``i0..i1`` and columns ``j0..j1`` (current cell indices,
+        ends exclusive) lie inside it, padding by ``chunk`` more cells on a side that grows
+        (fewer, larger growths), and never beyond ``limit`` cells a side (what does not fit
+        then stays off the map). Returns whether it grew."""
+        H, W = self.obstacle.shape
+        pad = [_grow(H, max(-i0, 0), max(i1 - H, 0), chunk, limit),
+               _grow(W, max(-j0, 0), max(j1 - W, 0), chunk, limit)]
+        if not any(pad[0] + pad[1]):
+            return False
+        self.obstacle = np.pad(self.obstacle, pad)
+        self.explored = np.pad(self.explored, pad)
+        self.bumped = np.pad(self.bumped, pad)
+        self.semantic = np.pad(self.semantic, [(0, 0), *pad])
+        self.origin = (self.origin[0] + pad[0][0], self.origin[1] + pad[1][0])
+        self.generation += 1
+        return True
+
+
+def _grow(n: int, lo: int, hi: int, chunk: int, limit: int | None) -> tuple[int, int]:
+    """Padding (before, after) of an axis of ``n`` cells that must gain ``lo`` and ``hi``."""
+    a, b = (lo and lo + chunk), (hi and hi + chunk)
+    if limit is None or n + a + b <= limit:
+        return a, b
+    a, b = lo, hi  # no slack
+    room = max(limit - n, 0)
+    if a + b > room:
+        a = a * room // (a + b)
+        b = room - a if hi else 0
+    return a, b
 
 
 class MapBuilder:
     """Fuses each frame into an :class:`EpisodeMap`.
 
     ``obstacle_band`` is the (min, max) height in metres of points that block the agent;
-    ``stride`` subsamples pixels for the semantic channels (every ``stride``-th row and column).
+    ``stride`` subsamples pixels for the semantic channels (every ``stride``-th row and column);
+    ``size`` is the starting side in cells; the map grows up to ``max_size`` cells a side.
     """
 
     def __init__(
@@ -86,15 +142,18 @@ class MapBuilder:
         obstacle_band: tuple[float, float] = (0.1, 1.5),
         stride: int = 2,
         classes: tuple[str, ...] = OBJECT_CLASSES,
+        max_size: int = 4000,
     ):
-        if size < 8 or resolution <= 0:
-            raise ValueError(f"bad map geometry: size {size}, resolution {resolution}")
+        if size < 8 or resolution <= 0 or max_size < size:
+            raise ValueError(f"bad map geometry: size {size}, resolution {resolution}, "
+                             f"max_size {max_size}")
         self.camera = camera
         self.size = int(size)
         self.resolution = float(resolution)
         self.obstacle_band = obstacle_band
         self.stride = max(1, int(stride))
         self.classes = tuple(classes)
+        self.max_size = int(max_size)
         self.map_: EpisodeMap | None = None
 
     def reset(self) -> EpisodeMap:
@@ -114,18 +173,26 @@ class MapBuilder:
         px = x + c * forward - s * left
         py = y + s * forward + c * left
         k = 1.0 / self.resolution
-        ctr = self.size // 2
-        return (np.floor(py * k).astype(np.int32) + ctr, np.floor(px * k).astype(np.int32) + ctr)
+        oi, oj = self.map_.origin
+        return (np.floor(py * k).astype(np.int32) + oi, np.floor(px * k).astype(np.int32) + oj)
+
+    def _reach(self, m: EpisodeMap, pose) -> None:
+        """Grow the map to hold everything the sensor can see from ``pose`` (up to
+        ``max_size`` cells a side: beyond that, what falls off is not mapped)."""
+        i, j = m.to_cell(pose[0], pose[1])
+        k = int(math.ceil((self.camera.max_depth + 0.5) / self.resolution))
+        m.cover(i - k, i + k + 1, j - k, j + k + 1, limit=self.max_size)
 
     def update(self, depth: np.ndarray, pose, segmentation=None) -> EpisodeMap:
         """Fuse one frame taken at episode-frame ``pose``; returns the map."""
         m = self.map_ if self.map_ is not None else self.reset()
+        self._reach(m, pose)
         cam = self.camera
         forward, left, up = cam.points(depth)
         lo, hi = self.obstacle_band
         far = depth >= cam.max_depth - 1e-3  # no return within range: nothing there to map
         blocking = (up > lo) & (up < hi) & ~far
-        n = self.size
+        H, W = m.shape
 
         # free space: per column, up to the nearest blocking point (or the sensor range)
         col_free = np.where(blocking, depth, np.float32(cam.max_depth)).min(axis=0)
@@ -138,7 +205,7 @@ class MapBuilder:
         # obstacles
         if blocking.any():
             oi, oj = self._cells(pose, forward[blocking], left[blocking])
-            ok = (oi >= 0) & (oi < n) & (oj >= 0) & (oj < n)
+            ok = (oi >= 0) & (oi < H) & (oj >= 0) & (oj < W)
             m.obstacle[oi[ok], oj[ok]] = 1
             m.explored[oi[ok], oj[ok]] = 1
 
@@ -156,9 +223,9 @@ class MapBuilder:
         lft = left[::st, ::st][keep]
         cls = lab[keep] - 1  # class ids are 1-based
         i, j = self._cells(pose, f, lft)
-        n = self.size
-        ok = (i >= 0) & (i < n) & (j >= 0) & (j < n) & (cls < len(self.classes))
-        flat = (cls[ok].astype(np.int64) * n + i[ok]) * n + j[ok]
+        H, W = m.shape
+        ok = (i >= 0) & (i < H) & (j >= 0) & (j < W) & (cls < len(self.classes))
+        flat = (cls[ok].astype(np.int64) * H + i[ok]) * W + j[ok]
         idx, counts = np.unique(flat, return_counts=True)
         sem = m.semantic.reshape(-1)
         sem[idx] = np.minimum(sem[idx].astype(np.int64) + counts, 65535).astype(np.uint16)

@@ -133,15 +133,13 @@ class FMMPlanner:
         self.reset()
 
     def reset(self) -> None:
-        self.collisions_: np.ndarray | None = None
         self._cache = None
         self._dirty = True
 
     # ------------------------------------------------------------------ map edits
     def note_collision(self, m: EpisodeMap, pose) -> None:
-        """Mark the cells just ahead of the agent blocked: the map missed an obstacle there."""
-        if self.collisions_ is None or self.collisions_.shape != m.obstacle.shape:
-            self.collisions_ = np.zeros_like(m.obstacle)
+        """Mark the cells just ahead of the agent blocked (``m.bumped``): the map missed an
+        obstacle there."""
         x, y, t = pose
         c, s = math.cos(t), math.sin(t)
         pts = []
@@ -150,7 +148,7 @@ class FMMPlanner:
                 pts.append(m.to_cell(x + c * f - s * lat, y + s * f + c * lat))
         for i, j in pts:
             if m.inside(i, j):
-                self.collisions_[i, j] = 1
+                m.bumped[i, j] = 1
         self._dirty = True
 
     def window(self, m: EpisodeMap, agent: tuple[int, int], goal: np.ndarray, *,
@@ -165,8 +163,8 @@ class FMMPlanner:
         i1 = max(rows.max() if rows.size else agent[0], agent[0]) + pad + 1
         j0 = min(cols.min() if cols.size else agent[1], agent[1]) - pad
         j1 = max(cols.max() if cols.size else agent[1], agent[1]) + pad + 1
-        n = m.size
-        return max(i0, 0), min(i1, n), max(j0, 0), min(j1, n)
+        H, W = m.shape
+        return max(i0, 0), min(i1, H), max(j0, 0), min(j1, W)
 
     def traversable(self, m: EpisodeMap, crop, agent: tuple[int, int], *,
                     squeeze: bool = False) -> np.ndarray:
@@ -176,9 +174,7 @@ class FMMPlanner:
         agent is walled in by its own conservative map (a doorway closed by inflation).
         """
         i0, i1, j0, j1 = crop
-        occ = m.obstacle[i0:i1, j0:j1]
-        if self.collisions_ is not None:
-            occ = occ | self.collisions_[i0:i1, j0:j1]
+        occ = m.obstacle[i0:i1, j0:j1] | m.bumped[i0:i1, j0:j1]
         pad = self.agent_radius + (-self.margin if squeeze else self.margin)
         trav = cv2.dilate(occ, disc(math.ceil(pad / m.resolution))) == 0
         # the agent's own cell and a little around it stay free, or it could never leave
@@ -207,6 +203,7 @@ class FMMPlanner:
             c is None
             or self._dirty
             or c["key"] != key
+            or c["generation"] != m.generation  # the map grew: cell indices moved
             or c["age"] >= self.replan_every
             or not (c["crop"][0] <= agent[0] < c["crop"][1]
                     and c["crop"][2] <= agent[1] < c["crop"][3])
@@ -228,7 +225,8 @@ class FMMPlanner:
                 crop = self.window(m, agent, goal, wide=True)
                 i0, i1, j0, j1 = crop
                 dist = self.distances(m, crop, agent, goal[i0:i1, j0:j1])
-            c = self._cache = {"key": key, "crop": crop, "dist": dist, "age": 0}
+            c = self._cache = {"key": key, "crop": crop, "dist": dist, "age": 0,
+                               "generation": m.generation}
             self._dirty = False
         c["age"] += 1
         return self._act(m, pose, agent, c)

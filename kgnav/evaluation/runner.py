@@ -38,11 +38,13 @@ from kgnav.agent.segmenter import make_segmenter
 from kgnav.atomic import atomic_open
 from kgnav.errors import KgnavError
 from kgnav.evaluation.failures import FAILURE_CLASSES, classify
+from kgnav.evaluation.sources import SceneSource, scene_source
+from kgnav.evaluation.stats import paired_differences
 from kgnav.evaluation.variants import VARIANTS, Variant
 from kgnav.merge import merge
 from kgnav.model import AbstractModel
 from kgnav.sim.env import ObjectNavEnv
-from kgnav.sim.episodes import SPLITS, episodes_for
+from kgnav.sim.episodes import SPLITS
 from kgnav.store import ModelStore
 
 DEFAULT_THRESHOLD = 0.3  # the paper's, for extractors without a calibrated one
@@ -50,11 +52,14 @@ DEFAULT_THRESHOLD = 0.3  # the paper's, for extractors without a calibrated one
 
 @dataclass(frozen=True)
 class EvalConfig:
-    """What to run. ``scenes``: the first K scenes of the split (None: all); ``episodes``: per
-    scene (None: the split's default); ``threshold``: relocation cosine distance (None: the
-    extractor's calibrated value)."""
+    """What to run. ``split``: a built-in split, or ``scenes_dir``: a directory of your own
+    (``kgnav scenes generate``); ``scenes``: the first K scenes (None: all); ``episodes``: per
+    scene (None: the split's default, or all of a directory's); ``threshold``: relocation
+    cosine distance (None: the extractor's calibrated value); ``actuation_noise`` /
+    ``odometry_noise``: the simulator's motion and pose-sensor noise (off, as in ObjectNav)."""
 
     split: str = "val"
+    scenes_dir: str | None = None
     variants: tuple[str, ...] = ("ans",)
     scenes: int | None = None
     episodes: int | None = None
@@ -67,12 +72,16 @@ class EvalConfig:
     height: int = 120
     pre_explore_steps: int = 1500
     max_steps: int = 500  # per episode (the task's 500; lower only for quick checks)
+    actuation_noise: float = 0.0
+    odometry_noise: float = 0.0
     show: tuple[int, int] | None = None  # (scene, episode) to draw from above per variant
     agent: AgentConfig = field(default_factory=AgentConfig)
 
     def __post_init__(self):
-        if self.split not in SPLITS:
+        if self.scenes_dir is None and self.split not in SPLITS:
             raise KgnavError(f"unknown split {self.split!r} (known: {', '.join(SPLITS)})")
+        if self.actuation_noise < 0 or self.odometry_noise < 0:
+            raise KgnavError("noise levels must be >= 0")
         for v in self.variants:
             if v not in VARIANTS:
                 raise KgnavError(f"unknown variant {v!r} (known: {', '.join(VARIANTS)})")
@@ -80,8 +89,19 @@ class EvalConfig:
             raise KgnavError(f"workers must be at least 1, got {self.workers}")
 
     @property
+    def source(self) -> SceneSource:
+        key = ("source", self.split, self.scenes_dir)
+        if key not in _CACHE:
+            _CACHE[key] = scene_source(self.split, self.scenes_dir)
+        return _CACHE[key]
+
+    @property
+    def source_name(self) -> str:
+        return self.scenes_dir if self.scenes_dir is not None else self.split
+
+    @property
     def scene_indices(self) -> list[int]:
-        n = len(SPLITS[self.split])
+        n = len(self.source)
         return list(range(min(self.scenes, n) if self.scenes else n))
 
 
@@ -108,10 +128,15 @@ _ROUND: dict = {}
 
 
 def _env(cfg: EvalConfig, scene: int) -> ObjectNavEnv:
-    key = ("env", cfg.split, scene, cfg.width, cfg.height, cfg.episodes, cfg.max_steps)
+    key = ("env", cfg.source_name, scene, cfg.width, cfg.height, cfg.episodes, cfg.max_steps,
+           cfg.actuation_noise, cfg.odometry_noise)
     if key not in _CACHE:
-        _CACHE[key] = ObjectNavEnv(cfg.split, scene, cfg.width, cfg.height,
-                                   n_episodes=cfg.episodes, max_steps=cfg.max_steps)
+        src = cfg.source
+        _CACHE[key] = ObjectNavEnv(src.name, src.scene(scene), cfg.width, cfg.height,
+                                   episodes=src.episodes(scene, cfg.episodes),
+                                   max_steps=cfg.max_steps,
+                                   actuation_noise=cfg.actuation_noise,
+                                   odometry_noise=cfg.odometry_noise)
     return _CACHE[key]
 
 
@@ -221,8 +246,7 @@ def _draw(env: ObjectNavEnv, agent, path: str) -> None:
     if m is None:
         env.topdown(path)
         return
-    c = m.center * m.resolution
-    env.topdown(path, agent_map=m.explored, map_resolution=m.resolution, map_origin=(-c, -c))
+    env.topdown(path, agent_map=m.explored, map_resolution=m.resolution, map_origin=m.corner)
 
 
 def _relocation_fields(env: ObjectNavEnv, reloc) -> dict:
@@ -330,7 +354,7 @@ def _bar(total: int, desc: str, progress: bool):
 
 def _episode_count(cfg: EvalConfig) -> list[int]:
     """Episodes per selected scene."""
-    return [len(episodes_for(cfg.split, s, cfg.episodes)) for s in cfg.scene_indices]
+    return [len(cfg.source.episodes(s, cfg.episodes)) for s in cfg.scene_indices]
 
 
 def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Path | None,
@@ -402,7 +426,7 @@ def _clear_store(path: Path) -> None:
 def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progress: bool
                   ) -> dict[str, AbstractModel]:
     """The hp/sp memory: one pre-explored model per house, built once per output directory."""
-    key = json.dumps({"split": cfg.split, "scenes": cfg.scene_indices, "seed": cfg.seed,
+    key = json.dumps({"split": cfg.source_name, "scenes": cfg.scene_indices, "seed": cfg.seed,
                       "steps": cfg.pre_explore_steps, "extractor": extractor_name,
                       "segmenter": cfg.segmenter, "size": [cfg.width, cfg.height]},
                      sort_keys=True)
@@ -436,8 +460,11 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
 
 
 # ---------------------------------------------------------------------- whole benchmark
-def summarize(records: Iterable[dict]) -> dict[str, dict]:
-    """Per variant: mean Success/SPL/SoftSPL/DTS, episodes, relocation rate and failures."""
+def summarize(records: Iterable[dict], seed: int = 0) -> dict[str, dict]:
+    """Per variant: mean Success/SPL/SoftSPL/DTS, episodes, relocation rate and failures, and
+    (``vs_ans``) the paired difference in success and SPL against ``ans`` on the same
+    episodes with a 95 % bootstrap interval."""
+    records = list(records)
     by: dict[str, list[dict]] = {}
     for rec in records:
         by.setdefault(rec["variant"], []).append(rec)
@@ -457,6 +484,8 @@ def summarize(records: Iterable[dict]) -> dict[str, dict]:
             "relocation_error_m": _median([r["relocation"].get("error_m") for r in reloc]),
             "failures": {c: sum(r["failure"] == c for r in recs) for c in FAILURE_CLASSES},
         }
+    for name, diff in paired_differences(records, "ans", seed=seed).items():
+        out[name]["vs_ans"] = diff
     return out
 
 
@@ -498,7 +527,7 @@ def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = Tr
     finally:
         if part is not None:
             part.close()
-    summary = summarize(records)
+    summary = summarize(records, cfg.seed)
     for name, t in timing.items():
         summary[name].update(t)
     if out_dir is not None:
@@ -530,6 +559,6 @@ def write_plots(records: list[dict], summary: dict, cfg: EvalConfig, out_dir: Pa
         pair = {k: imgs[k] for k in ("ans", "si")} if {"ans", "si"} <= imgs.keys() else imgs
         if pair:
             p = out_dir / f"topdown_{scene:02d}_e{ep:03d}.png"
-            plots.side_by_side(pair, p, f"{cfg.split} scene {scene}, episode {ep}")
+            plots.side_by_side(pair, p, f"{cfg.source_name} scene {scene}, episode {ep}")
             paths.append(p)
     return paths

@@ -1,13 +1,19 @@
 """Splits (fixed scene seeds) and deterministic ObjectNav episodes, cached as files.
 
-* ``train``: 20 houses, seeds 1000..1019; ``val``: 11 houses, seeds 2000..2010 (the paper's
-  validation set has 11 environments). Scene ``k`` of a split is named ``{split}_{k:02d}``.
+* ``train``: 20 Matterport3D-scale houses (generator ``house-v2``, seeds 3000..3019); ``val``:
+  11 (seeds 4000..4010; the paper's validation set has 11 environments). ``train-small`` and
+  ``val-small`` are the first generator's houses (``house-v1``, seeds 1000..1019 and
+  2000..2010), kept for quick runs and continuity with earlier results. Scene ``k`` of a split
+  is named ``{split}_{k:02d}``.
 * Scenes and episode sets are generated on first use and cached under ``$KGNAV_CACHE`` (default
   ``~/.cache/kgnav``) in ``sim/v1/``; a cached file that is unreadable or from another generator
   version is regenerated. Generation is deterministic, so the cache only saves time.
 * An episode: start pose on navigable floor, a goal class (one of the six ObjectNav classes
   present in the house) with a reachable instance, geodesic start-to-goal distance in
-  [1, 30] m, not already inside the success region. At most 500 actions.
+  [1, 30] m, not already inside the success region. At most 500 actions. In ``house-v2`` houses
+  the distance follows a Matterport3D-like spread (:data:`MP3D_DISTANCE`: log-normal, median
+  8 m, mean about 9 m, clipped to [1, 30] m) as far as the house allows; ``house-v1`` episodes
+  draw start cells uniformly, as before.
 
 >>> from kgnav.sim.episodes import SPLITS
 >>> len(SPLITS["val"])
@@ -28,6 +34,7 @@ import numpy as np
 from kgnav.classes import OBJECTNAV_CLASSES, class_id
 from kgnav.errors import SceneFileError
 from kgnav.sim.house import GENERATOR, Scene, generate_house
+from kgnav.sim.house_v2 import GENERATOR_V2, generate_large_house
 from kgnav.sim.navmesh import NavMap
 from kgnav.sim.scene_io import (
     atomic_write_text,
@@ -38,14 +45,23 @@ from kgnav.sim.scene_io import (
 )
 
 SPLITS: dict[str, tuple[int, ...]] = {
-    "train": tuple(range(1000, 1020)),
-    "val": tuple(range(2000, 2011)),
+    "train": tuple(range(3000, 3020)),
+    "val": tuple(range(4000, 4011)),
+    "train-small": tuple(range(1000, 1020)),
+    "val-small": tuple(range(2000, 2011)),
 }
+#: The generator of each split's houses.
+SPLIT_GENERATOR: dict[str, str] = {"train": GENERATOR_V2, "val": GENERATOR_V2,
+                                   "train-small": GENERATOR, "val-small": GENERATOR}
 EPISODES_FORMAT = "kgnav-episodes"
 EPISODES_VERSION = 1
-DEFAULT_EPISODES_PER_SCENE = {"train": 50, "val": 20}
+#: Episodes per scene when none is asked for. ``val``'s 60 x 11 houses make a paired
+#: difference in success of about 3 points significant (see the README, "Enough episodes").
+DEFAULT_EPISODES_PER_SCENE = {"train": 50, "val": 60, "train-small": 50, "val-small": 20}
 MAX_STEPS = 500
 MIN_GEODESIC, MAX_GEODESIC = 1.0, 30.0
+#: Start-to-goal geodesic distances of ``house-v2`` episodes: log-normal (median m, sigma).
+MP3D_DISTANCE = (8.0, 0.55)
 
 
 @dataclass(frozen=True)
@@ -88,11 +104,11 @@ def load_scene_of(split: str, index: int, cache: bool = True) -> Scene:
     if cache and path.exists():
         try:
             s = load_scene(path)
-            if s.generator == GENERATOR and s.seed == seed and s.name == name:
+            if s.generator == SPLIT_GENERATOR[split] and s.seed == seed and s.name == name:
                 return s
         except SceneFileError:
             pass  # stale or damaged cache entry: regenerate below
-    s = generate_house(seed, name=name)
+    s = generate_scene(SPLIT_GENERATOR[split], seed, name)
     if cache:
         try:
             save_scene(s, path)
@@ -101,8 +117,17 @@ def load_scene_of(split: str, index: int, cache: bool = True) -> Scene:
     return s
 
 
+def generate_scene(generator: str, seed: int, name: str | None = None, **kw) -> Scene:
+    """A house of the named generator (``house-v1`` or ``house-v2``) from ``seed``."""
+    if generator == GENERATOR:
+        return generate_house(seed, name=name, **kw)
+    if generator == GENERATOR_V2:
+        return generate_large_house(seed, name=name, **kw)
+    raise ValueError(f"unknown house generator {generator!r} (known: {GENERATOR}, {GENERATOR_V2})")
+
+
 def load_split(split: str, cache: bool = True) -> list[Scene]:
-    """Every scene of ``split`` (``"train"`` or ``"val"``)."""
+    """Every scene of ``split`` (see :data:`SPLITS`)."""
     _check_split(split)
     return [load_scene_of(split, i, cache) for i in range(len(SPLITS[split]))]
 
@@ -110,8 +135,18 @@ def load_split(split: str, cache: bool = True) -> list[Scene]:
 def generate_episodes(scene: Scene, n: int, seed: int = 0,
                       classes: tuple[str, ...] = OBJECTNAV_CLASSES,
                       min_geodesic: float = MIN_GEODESIC,
-                      max_geodesic: float = MAX_GEODESIC) -> list[Episode]:
-    """``n`` deterministic episodes in ``scene`` (same arguments, same episodes)."""
+                      max_geodesic: float = MAX_GEODESIC,
+                      spread: str | None = None) -> list[Episode]:
+    """``n`` deterministic episodes in ``scene`` (same arguments, same episodes).
+
+    ``spread``: how start-to-goal distances are drawn. ``"uniform"`` picks a (goal class, start
+    cell) pair uniformly (the ``house-v1`` episodes); ``"mp3d"`` draws a target distance from
+    :data:`MP3D_DISTANCE` and a start whose distance is within 10 % of it (another draw when
+    the house has none). Default: ``"mp3d"`` for ``house-v2`` houses, else ``"uniform"``.
+    """
+    spread = spread or ("mp3d" if scene.generator == GENERATOR_V2 else "uniform")
+    if spread not in ("uniform", "mp3d"):
+        raise ValueError(f"unknown distance spread {spread!r} (known: uniform, mp3d)")
     nav = NavMap.from_scene(scene)
     rng = np.random.default_rng([seed, scene.seed])
     usable = []
@@ -120,13 +155,19 @@ def generate_episodes(scene: Scene, n: int, seed: int = 0,
             f = nav.distance_field(c)
             ok = nav.grid & (f >= min_geodesic) & (f <= max_geodesic)
             if ok.any():
-                usable.append((c, f, np.argwhere(ok)))
+                cells = np.argwhere(ok)  # row-major: the uniform draw's order
+                d = f[ok]
+                order = np.argsort(d, kind="stable")
+                usable.append((c, f, cells, cells[order], d[order]))
     if not usable:
         raise ValueError(f"scene {scene.name!r} has no reachable goal of classes {classes}")
     out: list[Episode] = []
     for k in range(n):
-        c, f, cells = usable[int(rng.integers(len(usable)))]
-        i, j = cells[int(rng.integers(len(cells)))]
+        if spread == "uniform":
+            c, f, cells, _by_d, _d = usable[int(rng.integers(len(usable)))]
+            i, j = cells[int(rng.integers(len(cells)))]
+        else:
+            c, f, i, j = _draw_far(rng, usable, min_geodesic, max_geodesic)
         x, y = nav.to_world(int(i), int(j))
         theta = float(rng.uniform(-math.pi, math.pi))
         out.append(Episode(
@@ -140,20 +181,41 @@ def generate_episodes(scene: Scene, n: int, seed: int = 0,
     return out
 
 
-def episodes_to_dict(episodes: list[Episode], split: str = "", scene: str = "") -> dict[str, Any]:
+def _draw_far(rng, usable, lo: float, hi: float):
+    """One (class, field, row, col) whose distance is near a draw of :data:`MP3D_DISTANCE`."""
+    median, sigma = MP3D_DISTANCE
+    for _ in range(200):
+        target = float(np.clip(rng.lognormal(math.log(median), sigma), lo, hi))
+        tol = max(0.25, 0.1 * target)
+        for q in rng.permutation(len(usable)):
+            c, f, _cells, cells, d = usable[int(q)]
+            a, b = np.searchsorted(d, [target - tol, target + tol])
+            if b > a:
+                i, j = cells[int(rng.integers(a, b))]
+                return c, f, i, j
+    c, f, cells, _by_d, _d = usable[int(rng.integers(len(usable)))]  # pragma: no cover
+    i, j = cells[int(rng.integers(len(cells)))]
+    return c, f, i, j
+
+
+def episodes_to_dict(episodes: list[Episode], split: str = "", scene: str = "",
+                     generator: str = GENERATOR) -> dict[str, Any]:
     return {
         "format": EPISODES_FORMAT,
         "version": EPISODES_VERSION,
-        "generator": GENERATOR,
+        "generator": generator,
         "split": split,
         "scene": scene,
         "episodes": [asdict(e) for e in episodes],
     }
 
 
-def save_episodes(episodes: list[Episode], path, split: str = "", scene: str = "") -> None:
-    """Save an episode list as a versioned JSON file (atomically)."""
-    atomic_write_text(path, json.dumps(episodes_to_dict(episodes, split, scene), indent=1))
+def save_episodes(episodes: list[Episode], path, split: str = "", scene: str = "",
+                  generator: str = GENERATOR) -> None:
+    """Save an episode list as a versioned JSON file (atomically); ``generator`` names the
+    houses' generator (a cached file of another generator is regenerated)."""
+    atomic_write_text(path, json.dumps(episodes_to_dict(episodes, split, scene, generator),
+                                       indent=1))
 
 
 def load_episodes(path) -> list[Episode]:
@@ -179,8 +241,8 @@ def load_episodes(path) -> list[Episode]:
 
 def episodes_for(split: str, scene: int, n: int | None = None, cache: bool = True,
                  seed: int = 0) -> list[Episode]:
-    """The episode set of scene ``scene`` of ``split`` (default count per split: train 50,
-    val 20), from the cache or generated deterministically."""
+    """The episode set of scene ``scene`` of ``split`` (default count per split:
+    :data:`DEFAULT_EPISODES_PER_SCENE`), from the cache or generated deterministically."""
     _check_split(split, scene)
     n = DEFAULT_EPISODES_PER_SCENE[split] if n is None else int(n)
     name = scene_name(split, scene)
@@ -189,14 +251,14 @@ def episodes_for(split: str, scene: int, n: int | None = None, cache: bool = Tru
         try:
             with open(path, encoding="utf-8") as f:
                 gen = json.load(f).get("generator")
-            if gen == GENERATOR:
+            if gen == SPLIT_GENERATOR[split]:
                 return load_episodes(path)
         except (SceneFileError, OSError, ValueError, AttributeError):
             pass
     eps = generate_episodes(load_scene_of(split, scene, cache), n, seed=seed)
     if cache:
         try:
-            save_episodes(eps, path, split, name)
+            save_episodes(eps, path, split, name, SPLIT_GENERATOR[split])
         except OSError:
             pass
     return eps

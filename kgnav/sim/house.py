@@ -32,6 +32,8 @@ ROOM_KINDS: tuple[str, ...] = (
     "dining_room",
     "office",
     "hallway",
+    "storage",
+    "laundry",
 )
 
 WALL_HEIGHT = 2.5  # m, also the ceiling height

@@ -285,8 +285,9 @@ class Renderer:
         s1 = np.where(valid, on[:, vis], np.inf)
         s2 = of[:, vis]
         # rows covered: the height range the ray spans inside the box meets [B, T]
-        ylo = (B - ch) / np.where(B <= ch, s1, s2)
-        yhi = (T - ch) / np.where(T >= ch, s1, s2)
+        with np.errstate(divide="ignore", invalid="ignore"):  # lanes of a miss: masked below
+            ylo = (B - ch) / np.where(B <= ch, s1, s2)
+            yhi = (T - ch) / np.where(T >= ch, s1, s2)
         ylo = np.where(valid, ylo, np.inf)
         yhi = np.where(valid, yhi, -np.inf)
         H, W = zbuf.shape
