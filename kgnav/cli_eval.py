@@ -75,7 +75,7 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
 @click.option("--scenes", type=click.IntRange(min=1), default=None,
               help="Run only the first K scenes of the split (default: all).")
 @click.option("--episodes", type=click.IntRange(min=1), default=None,
-              help="Episodes per scene (default: the split's, 60 for val; all of a "
+              help="Episodes per scene (default: the split's, 100 for val; all of a "
                    "--scenes-dir).")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
               help="Processes; results are identical to one.")

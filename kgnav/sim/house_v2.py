@@ -61,9 +61,9 @@ WIDE_OPENING = (1.4, 2.4)  # m, between living areas
 
 #: Rooms each goal class may stand in, per house (drawn uniformly in the range).
 GOAL_ROOM_BUDGET: dict[str, tuple[int, int]] = {
-    "chair": (1, 2),
+    "chair": (1, 3),
     "bed": (1, 2),
-    "plant": (1, 2),
+    "plant": (1, 3),
     "toilet": (1, 1),
     "tv_monitor": (1, 1),
     "sofa": (1, 1),
