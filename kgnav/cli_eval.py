@@ -95,18 +95,26 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
               help="Motion noise (K scales Gaussian 2.5 cm / 1 cm / 1 deg per move, 2 deg per "
                    "turn) and pose-sensor noise (S m and S deg per step). Off by default, as "
                    "in ObjectNav.")
+@click.option("--preset", type=click.Choice(["default", "paper"]), default="default",
+              show_default=True,
+              help="Agent settings: default (verified relocation, remembered geometry, "
+                   "evidence-weighted goals, close-range confirmation, memory consolidation) "
+                   "or the paper's own.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 def eval_cmd(split, scenes_dir, variants, out_dir, scenes, episodes, workers, segmenter,
-             extractor, threshold, pre_explore_steps, show, noise, seed, quiet) -> None:
+             extractor, threshold, pre_explore_steps, show, noise, preset, seed, quiet) -> None:
     """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
+    from kgnav.agent.loop import PRESETS
     from kgnav.evaluation.runner import EvalConfig, run_eval
 
     cfg = EvalConfig(split=split, scenes_dir=None if scenes_dir is None else str(scenes_dir),
                      variants=variants, scenes=scenes, episodes=episodes,
                      workers=workers, segmenter=segmenter, extractor=extractor,
                      threshold=threshold, seed=seed, pre_explore_steps=pre_explore_steps,
-                     show=show, actuation_noise=noise[0], odometry_noise=noise[1])
+                     show=show, actuation_noise=noise[0], odometry_noise=noise[1],
+                     agent=PRESETS[preset](), forget_below=0.2 if preset == "default" else 0.0,
+                     preset=preset)
     if show is None:  # the first house's last episode
         cfg = replace(cfg, show=(0, len(cfg.source.episodes(0, episodes)) - 1))
     _records, summary = run_eval(cfg, out_dir, progress=not quiet)
@@ -140,3 +148,23 @@ def print_summary(summary: dict) -> None:
                        *(f"{d[m]['diff']:+.3f} [{d[m]['low']:+.3f}, {d[m]['high']:+.3f}]"
                          for m in ("success", "spl")))
         console.print(t2)
+    mem = {n: s for n, s in summary.items() if "memory" in s}
+    if mem:
+        t3 = Table("variant", "reloc. after 1st (min/mean)", "reloc. step", "wrong merges",
+                   "models/house", "objects", "precision (trusted)", "copies", "recall",
+                   title="Relocation and memory fidelity (against ground truth)")
+        for name, s in mem.items():
+            p = s["memory"]["pooled"]
+            lo, mean = s.get("relocated_after_first_min"), s.get("relocated_after_first_mean")
+            t3.add_row(
+                name, "–" if lo is None else f"{lo:.2f} / {mean:.2f}",
+                "–" if s.get("relocation_step") is None else f"{s['relocation_step']:.0f}",
+                str(s.get("wrong_merges", 0)),
+                " ".join(f"{k}:{v}" for k, v in p["models_per_house"].items()),
+                str(p["objects"]), f"{_f(p['precision'])} ({_f(p['trusted_precision'])})",
+                _f(p["copies"]), _f(p["recall"]))
+        console.print(t3)
+
+
+def _f(v) -> str:
+    return "–" if v is None else f"{v:.2f}"

@@ -38,7 +38,7 @@ def scenes() -> None:
               help="Room count range A..B (corridors included), drawn per house.")
 @click.option("--size", type=click.FloatRange(5.2, 100.0), default=40.0, show_default=True,
               help="Largest floor side in metres.")
-@click.option("--episodes", type=click.IntRange(min=1), default=60, show_default=True,
+@click.option("--episodes", type=click.IntRange(min=1), default=100, show_default=True,
               help="Episodes per house.")
 @click.option("--generator", type=click.Choice(["house-v2", "house-v1"]), default="house-v2",
               show_default=True, help="house-v1: the small houses of train-small/val-small "

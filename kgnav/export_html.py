@@ -36,8 +36,9 @@ import pyvis
 from pyvis.network import Network
 
 from kgnav.atomic import atomic_open
+from kgnav.evidence import belief, object_evidence
 from kgnav.model import SEES, AbstractModel
-from kgnav.query import visible_classes
+from kgnav.query import occupancy, visible_classes
 
 #: Metres → pixels (vis-network's canvas units); a 0.25 m forward step is 25 px.
 PX_PER_M = 100.0
@@ -149,12 +150,15 @@ def _state_node(model: AbstractModel, sid: str, d: dict) -> dict:
     return {"id": sid, "x": px, "y": py, "title": title, "color": STATE_COLOR}
 
 
-def _object_node(oid: str, d: dict, colour: str) -> dict:
+def _object_node(oid: str, d: dict, colour: str, ev=None) -> dict:
     title = (
         f"object {oid}: {d['cls']}\n"
         f"position x={d['x']:.2f} m  y={d['y']:.2f} m  z={d['z']:.2f} m\n"
         f"seen from {d['n_views']} states ({d['n_obs']} observations)"
     )
+    if ev is not None:
+        title += (f"\nin {ev.n_episodes} episodes, missed by {ev.n_missed} states"
+                  f"\nbelief {belief(ev):.2f}")
     px, py = _xy(d["x"], d["y"])
     return {
         "id": oid,
@@ -178,8 +182,9 @@ def build_network(model: AbstractModel, *, title: str, show_sees: bool | None = 
     colours = {cls: class_color(i) for i, cls in enumerate(model.classes)}
     # states first: vis draws in data order, so the objects end up on top of the path
     nodes = [_state_node(model, n, g.nodes[n]) for n in model.states()]
+    evidence = object_evidence(model)
     nodes += [
-        _object_node(n, g.nodes[n], colours.get(g.nodes[n]["cls"], OTHER_COLOR))
+        _object_node(n, g.nodes[n], colours.get(g.nodes[n]["cls"], OTHER_COLOR), evidence[n])
         for n in model.objects()
     ]
 
@@ -253,8 +258,36 @@ def build_network(model: AbstractModel, *, title: str, show_sees: bool | None = 
         "class_legend": [
             (cls, colours[cls], class_counts[cls]) for cls in model.classes if class_counts[cls]
         ],
+        "floor": _floor_image(model),
     }
     return net
+
+
+#: Metres per pixel of the remembered-floor picture drawn under the graph.
+FLOOR_RESOLUTION = 0.1
+
+
+def _floor_image(model: AbstractModel) -> dict | None:
+    """What the states' range profiles saw (:func:`kgnav.query.occupancy`) as a small PNG
+    (free floor light, obstacles dark, unknown transparent) placed in canvas units."""
+    import base64
+
+    import cv2
+
+    grid = occupancy(model, FLOOR_RESOLUTION)
+    if grid is None:
+        return None
+    h, w = grid.free.shape
+    img = np.zeros((h, w, 4), np.uint8)
+    img[grid.free > 0] = (236, 231, 222, 255)  # BGRA
+    img[grid.obstacle] = (70, 70, 70, 255)
+    ok, png = cv2.imencode(".png", img[::-1])  # rows grow upwards in the model frame
+    if not ok:  # pragma: no cover - encoding a uint8 image does not fail
+        return None
+    x0, y1 = _xy(grid.x0, grid.y0 + h * grid.resolution)
+    return {"src": "data:image/png;base64," + base64.b64encode(png.tobytes()).decode("ascii"),
+            "x": x0, "y": y1, "w": round(w * grid.resolution * PX_PER_M, 1),
+            "h": round(h * grid.resolution * PX_PER_M, 1)}
 
 
 def export_html(

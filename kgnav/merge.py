@@ -69,6 +69,10 @@ def best_anchor(
     return t_ids[best[1]], s_ids[best[2]], 1.0 - best[0]
 
 
+def _has_ranges(m: AbstractModel) -> bool:
+    return any("ranges" in m.graph.nodes[s] for s in m.states())
+
+
 def merge(
     target: AbstractModel,
     source: AbstractModel,
@@ -94,6 +98,9 @@ def merge(
 
     out = target.copy()
     src = source.copy().transform(T)
+    if out.scan is None and src.scan is not None and not _has_ranges(out):
+        out.graph.graph["scan"] = src.graph.graph["scan"]
+    keep_ranges = src.scan is not None and src.scan == out.scan  # else another camera's
     extra = [c for c in src.classes if c not in out.classes]
     if extra:
         out.graph.graph["classes"] = ",".join(out.classes + tuple(extra))
@@ -113,7 +120,8 @@ def merge(
             hit = out.find_state(pose, d["features"])
             if hit is None:
                 hit = out._new_state_node(
-                    pose, d["features"], episode=d["episode"], step=d["step"], origin=d["origin"]
+                    pose, d["features"], episode=d["episode"], step=d["step"], origin=d["origin"],
+                    ranges=d.get("ranges") if keep_ranges else None,
                 )
         out._add_origins(hit, d["origin"])
         node_map[s] = hit
@@ -124,16 +132,18 @@ def merge(
         hit = out.known_node(d["origin"])
         if hit is None:
             xyz = (d["x"], d["y"], d["z"])
-            hit = out._nearest_object(d["cls"], d["x"], d["y"])
+            hit = out._nearest_object(d["cls"], d["x"], d["y"], d["radius"])
             if hit is None:
-                hit = out._new_object_node(d["cls"], xyz, d["n_obs"], d["origin"])
+                hit = out._new_object_node(d["cls"], xyz, d["n_obs"], d["origin"], d["radius"])
             else:
-                out._absorb_into_object(hit, xyz, d["n_obs"])
+                out._add_origins(hit, d["origin"])
+                out._absorb_into_object(hit, xyz, d["n_obs"], d["radius"])
+                hit = out.resolve(hit)
         out._add_origins(hit, d["origin"])
         node_map[o] = hit
 
     for u, v, k, d in src.graph.edges(keys=True, data=True):
-        mu, mv = node_map[u], node_map[v]
+        mu, mv = out.resolve(node_map[u]), out.resolve(node_map[v])
         if k == SEES:
             out._link_view(mu, mv, {a: val for a, val in d.items() if a != "kind"})
         elif g.has_edge(mu, mv, k) and u in same_record and v in same_record:

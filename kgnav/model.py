@@ -6,16 +6,21 @@ Schema (version :data:`SCHEMA_VERSION`, DESIGN.md §3):
 element        kind                      attributes
 ============== ========================= ====================================================
 state node     ``kind="state"``          ``x, y, theta`` (model frame), ``episode``, ``step``,
-                                         ``features`` (float32 vector), ``origin``
+                                         ``features`` (float32 vector), ``origin``; optional
+                                         ``ranges`` (float16 range profile, see
+                                         :mod:`kgnav.geometry`)
 object node    ``kind="object"``         ``cls``, ``x, y, z`` (mean of observations),
-                                         ``n_obs``, ``n_views``, ``origin``
+                                         ``radius`` (mean extent of the observed surface),
+                                         ``n_obs``, ``n_views``, ``score`` (summed detection
+                                         scores of its views), ``origin``
 transition     state → state, key=action ``kind="transition"``, ``count``
 sees edge      state → object, key=sees  ``kind="sees"``, ``bbox`` (u0, v0, u1, v1 px),
                                          ``distance`` (m), ``pixels``, ``obs`` (x, y, z of
-                                         this observation, model frame)
+                                         this observation, model frame), ``radius``, ``score``
 graph          —                         ``kgnav_schema``, ``model_id``, ``feature_dim``,
                                          ``extractor``, ``classes``, ``episodes``,
-                                         ``merged_from``, tolerances
+                                         ``merged_from``, ``scan`` (range profile geometry,
+                                         JSON, or empty), tolerances
 ============== ========================= ====================================================
 
 ``origin`` is provenance: the space-separated ``"<model_id>/<node_id>"`` of every recorded node
@@ -48,8 +53,9 @@ import numpy as np
 from kgnav import se2
 from kgnav.classes import OBJECT_CLASSES
 from kgnav.errors import FeatureDimError, UnknownClassError, UnknownStateError
+from kgnav.geometry import ScanGeometry
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 #: The paper's action set; transitions are keyed by these names.
 ACTIONS: tuple[str, ...] = ("stop", "move_forward", "turn_left", "turn_right")
@@ -65,7 +71,9 @@ class Detection:
     """One object seen from a state: ``F_{s,c}`` in the paper.
 
     ``position`` is in the model frame (bbox-centroid depth + pose); ``bbox`` is
-    ``(u0, v0, u1, v1)`` in pixels; ``distance`` is metres from the agent.
+    ``(u0, v0, u1, v1)`` in pixels; ``distance`` is metres from the agent; ``radius`` how far
+    (m, in the floor plane) the visible surface extends around ``position`` (0: a point);
+    ``score`` the segmenter's confidence.
     """
 
     cls: str
@@ -73,17 +81,21 @@ class Detection:
     bbox: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     distance: float = 0.0
     pixels: int = 0
+    radius: float = 0.0
+    score: float = 1.0
 
 
 @dataclass(frozen=True)
 class ObjectInfo:
-    """A read-only view of an object node."""
+    """A read-only view of an object node (its evidence beyond views: :mod:`kgnav.evidence`)."""
 
     id: str
     cls: str
     position: tuple[float, float, float]
     n_views: int
     n_obs: int
+    radius: float = 0.0
+    score: float = 0.0
 
 
 @dataclass
@@ -123,7 +135,12 @@ class AbstractModel:
         ``angle_tol`` radians and its features are within cosine distance ``feature_tol``.
     object_radius:
         Detections of a class within this distance (metres, in the floor plane) of an object of
-        the same class are views of that object.
+        the same class are views of that object; for large objects the distance grows with
+        their observed extent (see :meth:`association_distance`), so a bed seen from its foot
+        and from its side stays one object.
+    scan:
+        The geometry of the states' range profiles (:class:`kgnav.geometry.ScanGeometry`), or
+        None when states carry none.
     """
 
     def __init__(
@@ -137,6 +154,7 @@ class AbstractModel:
         angle_tol: float = math.radians(2.0),
         feature_tol: float = 1e-3,
         object_radius: float = 0.5,
+        scan: ScanGeometry | None = None,
     ):
         if int(feature_dim) <= 0:
             raise ValueError(f"feature_dim must be positive, got {feature_dim}")
@@ -161,6 +179,7 @@ class AbstractModel:
             angle_tol=float(angle_tol),
             feature_tol=float(feature_tol),
             object_radius=float(object_radius),
+            scan=scan.to_json() if scan is not None else "",
         )
         self._init_counters()
 
@@ -186,6 +205,16 @@ class AbstractModel:
     @property
     def extractor(self) -> str:
         return self.graph.graph["extractor"]
+
+    @property
+    def scan(self) -> ScanGeometry | None:
+        """The geometry of the states' range profiles, or None."""
+        text = self.graph.graph.get("scan", "")
+        return ScanGeometry.from_json(text) if text else None
+
+    def ranges(self, state: str) -> np.ndarray | None:
+        """The state's range profile (read-only float16), or None if it has none."""
+        return self._check_state(state).get("ranges")
 
     @property
     def episodes(self) -> list:
@@ -247,7 +276,8 @@ class AbstractModel:
 
     def object_info(self, obj: str) -> ObjectInfo:
         d = self.graph.nodes[obj]
-        return ObjectInfo(obj, d["cls"], (d["x"], d["y"], d["z"]), d["n_views"], d["n_obs"])
+        return ObjectInfo(obj, d["cls"], (d["x"], d["y"], d["z"]), d["n_views"], d["n_obs"],
+                          d["radius"], d["score"])
 
     def check_class(self, cls: str) -> str:
         if cls not in self.classes:
@@ -267,6 +297,7 @@ class AbstractModel:
             else:
                 next_o = max(next_o, num + 1)
         self._next_state, self._next_object = next_s, next_o
+        self._folded: dict[str, str] = {}  # object ids folded into another, and into which
         self._index = _Index()
         for n in self.graph.nodes:
             self._index_node(n)
@@ -348,13 +379,16 @@ class AbstractModel:
         *,
         episode: int = 0,
         step: int = 0,
+        ranges=None,
     ) -> str:
         """Add the state ``s = <F_s, C_s, {F_s,c}>`` and return its id.
 
         If a coincident state is already present (see the class tolerances) its id is returned and
         the model is unchanged: the caller then only adds the transition, as the paper does.
+        ``ranges`` is the state's range profile (one value per bin of the model's ``scan``).
         """
         f = self._validate_features(features)
+        r = self._validate_ranges(ranges)
         pose = se2.as_pose(pose)
         detections = list(detections)
         for det in detections:
@@ -366,7 +400,7 @@ class AbstractModel:
         existing = self.find_state(pose, f)
         if existing is not None:
             return existing
-        sid = self._new_state_node(pose, f, episode=episode, step=step, origin=None)
+        sid = self._new_state_node(pose, f, episode=episode, step=step, origin=None, ranges=r)
         for det in detections:
             self._add_view(
                 sid,
@@ -376,11 +410,29 @@ class AbstractModel:
                     bbox=tuple(float(v) for v in det.bbox),
                     distance=float(det.distance),
                     pixels=int(det.pixels),
+                    radius=max(float(det.radius), 0.0),
+                    score=float(det.score),
                 ),
             )
         return sid
 
-    def _new_state_node(self, pose, f, *, episode, step, origin) -> str:
+    def _validate_ranges(self, ranges) -> np.ndarray | None:
+        if ranges is None:
+            return None
+        scan = self.scan
+        if scan is None:
+            raise ValueError("this model has no scan geometry: create it with scan=... to "
+                             "store range profiles")
+        r = np.array(ranges, dtype=np.float16, copy=True).reshape(-1)
+        if r.shape != (scan.bins,):
+            raise ValueError(f"range profile has {r.size} values, the model's scan has "
+                             f"{scan.bins} bins")
+        if not np.all(np.isfinite(r)) or (r < 0).any():
+            raise ValueError("range profile values must be finite and >= 0")
+        r.setflags(write=False)
+        return r
+
+    def _new_state_node(self, pose, f, *, episode, step, origin, ranges=None) -> str:
         sid = f"s{self._next_state}"
         self._next_state += 1
         x, y, theta = (float(v) for v in pose)
@@ -395,6 +447,8 @@ class AbstractModel:
             features=f,
             origin=origin or f"{self.model_id}/{sid}",
         )
+        if ranges is not None:
+            self.graph.nodes[sid]["ranges"] = ranges
         self._n_states += 1
         self._index_node(sid)
         episodes = self.episodes
@@ -403,16 +457,34 @@ class AbstractModel:
             self.graph.graph["episodes"] = json.dumps(episodes)
         return sid
 
-    def _nearest_object(self, cls: str, x: float, y: float) -> str | None:
-        r = self._tol("object_radius")
-        best, best_d = None, r
-        cx, cy = self._grid(x, y, r)
-        for dx in (-1, 0, 1):
-            for dy in (-1, 0, 1):
+    #: Largest association distance (m) however large the objects: two beds side by side stay two.
+    MAX_ASSOCIATION = 1.2
+
+    def association_distance(self, r_a: float, r_b: float) -> float:
+        """Two same-class observations whose observed surfaces extend ``r_a`` and ``r_b``
+        metres around their centres belong to one object when their centres are at most this
+        far apart: the two extents touching (10 cm of slack), at least ``object_radius`` (what
+        point-like observations use), at most :attr:`MAX_ASSOCIATION`."""
+        return min(max(self._tol("object_radius"), r_a + r_b + 0.1), self.MAX_ASSOCIATION)
+
+    def _nearest_object(self, cls: str, x: float, y: float, radius: float = 0.0,
+                        skip: str | None = None) -> str | None:
+        """The nearest ``cls`` object that an observation at (x, y) extending ``radius``
+        associates with (see :meth:`association_distance`), if any."""
+        cell = self._tol("object_radius")
+        k = max(1, math.ceil(self.MAX_ASSOCIATION / cell)) if cell > 0 else 1
+        best, best_d = None, math.inf
+        cx, cy = self._grid(x, y, cell)
+        for dx in range(-k, k + 1):
+            for dy in range(-k, k + 1):
                 for o in self._index.object_cells.get((cls, cx + dx, cy + dy), ()):
+                    if o == skip:
+                        continue
                     d = self.graph.nodes[o]
                     dist = math.hypot(d["x"] - x, d["y"] - y)
-                    if dist < best_d or (dist == best_d and best is None):
+                    if dist > self.association_distance(d["radius"], radius):
+                        continue
+                    if dist < best_d or (dist == best_d and (best is None or o < best)):
                         best, best_d = o, dist
         return best
 
@@ -426,7 +498,8 @@ class AbstractModel:
                 best, best_d = o, dist
         return best
 
-    def _new_object_node(self, cls, xyz, n_obs: int, origin: str | None) -> str:
+    def _new_object_node(self, cls, xyz, n_obs: int, origin: str | None, radius: float = 0.0
+                         ) -> str:
         oid = f"o{self._next_object}"
         self._next_object += 1
         self.graph.add_node(
@@ -436,38 +509,99 @@ class AbstractModel:
             x=float(xyz[0]),
             y=float(xyz[1]),
             z=float(xyz[2]),
+            radius=float(radius),
             n_obs=int(n_obs),
             n_views=0,
+            score=0.0,
             origin=origin or f"{self.model_id}/{oid}",
         )
         self._index_node(oid)
         return oid
 
-    def _absorb_into_object(self, oid: str, xyz, n_obs: int) -> None:
-        """Fold ``n_obs`` observations with mean ``xyz`` into the object's running mean."""
+    def _absorb_into_object(self, oid: str, xyz, n_obs: int, radius: float = 0.0) -> None:
+        """Fold ``n_obs`` observations with mean ``xyz`` and extent ``radius`` into the
+        object's running means, then fold in any same-class object it now associates with."""
         d = self.graph.nodes[oid]
         old_cell = self._object_cell(oid)
         total = d["n_obs"] + n_obs
         for axis, v in zip("xyz", xyz, strict=True):
             d[axis] = float(d[axis] + (v - d[axis]) * n_obs / total)
+        d["radius"] = float(d["radius"] + (radius - d["radius"]) * n_obs / total)
         d["n_obs"] = total
+        self._reindex_object(oid, old_cell)
+        self._fold_neighbours(oid)
+
+    def _reindex_object(self, oid: str, old_cell) -> None:
         new_cell = self._object_cell(oid)
         if new_cell != old_cell:
             self._index.object_cells[old_cell].remove(oid)
             self._index.object_cells.setdefault(new_cell, []).append(oid)
 
+    def _fold_neighbours(self, oid: str) -> None:
+        """Keep one node per object: a moved or grown object swallows any same-class object
+        it now associates with (views, observations, evidence and provenance combined)."""
+        d = self.graph.nodes[oid]
+        while True:
+            other = self._nearest_object(d["cls"], d["x"], d["y"], d["radius"], skip=oid)
+            if other is None:
+                return
+            o = self.graph.nodes[other]
+            old_cell = self._object_cell(oid)
+            total = d["n_obs"] + o["n_obs"]
+            for axis in ("x", "y", "z", "radius"):
+                d[axis] = float(d[axis] + (o[axis] - d[axis]) * o["n_obs"] / total)
+            d["n_obs"] = total
+            d["score"] = float(d["score"] + o["score"])
+            for sid, _, data in list(self.graph.in_edges(other, data=True)):
+                if data["kind"] == "sees":
+                    self._link_view(sid, oid, {a: v for a, v in data.items() if a != "kind"})
+            self._index.object_cells[self._object_cell(other)].remove(other)
+            self._index.by_class[o["cls"]].remove(other)
+            origins = o["origin"]
+            self.graph.remove_node(other)
+            self._folded[other] = oid
+            self._add_origins(oid, origins)
+            self._reindex_object(oid, old_cell)
+
+    def remove_objects(self, ids) -> int:
+        """Remove object nodes (and the views of them); returns how many were removed."""
+        n = 0
+        for oid in list(ids):
+            d = self.graph.nodes.get(oid)
+            if d is None or d["kind"] != "object":
+                continue
+            self._index.object_cells[self._object_cell(oid)].remove(oid)
+            self._index.by_class[d["cls"]].remove(oid)
+            for origin in d["origin"].split():
+                if self._index.by_origin.get(origin) == oid:
+                    del self._index.by_origin[origin]
+            self.graph.remove_node(oid)
+            n += 1
+        return n
+
+    def resolve(self, node: str) -> str:
+        """The node that now holds ``node`` (an object may have been folded into another)."""
+        while node in self._folded:
+            node = self._folded[node]
+        return node
+
     def _link_view(self, sid: str, oid: str, view: dict) -> None:
         if not self.graph.has_edge(sid, oid, SEES):
             self.graph.add_edge(sid, oid, key=SEES, kind="sees", **view)
-            self.graph.nodes[oid]["n_views"] += 1
+            d = self.graph.nodes[oid]
+            d["n_views"] += 1
+            d["score"] = float(d["score"] + view.get("score", 1.0))
 
     def _add_view(self, sid: str, cls: str, xyz, view: dict) -> str:
-        oid = self._nearest_object(cls, xyz[0], xyz[1])
+        radius = view.get("radius", 0.0)
+        oid = self._nearest_object(cls, xyz[0], xyz[1], radius)
         if oid is None:
-            oid = self._new_object_node(cls, xyz, 1, None)
+            oid = self._new_object_node(cls, xyz, 1, None, radius)
+            self._link_view(sid, oid, dict(view, obs=tuple(xyz)))
         else:
-            self._absorb_into_object(oid, xyz, 1)
-        self._link_view(sid, oid, dict(view, obs=tuple(xyz)))
+            # link first: the fold that absorbing may trigger must see this view
+            self._link_view(sid, oid, dict(view, obs=tuple(xyz)))
+            self._absorb_into_object(oid, xyz, 1, radius)
         return oid
 
     def add_transition(self, src: str, action: str, dst: str, count: int = 1) -> None:

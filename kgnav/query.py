@@ -4,7 +4,11 @@
 * :func:`goal_point` — the paper's goal choice: the closest, to a given position, among the five
   most-seen objects of the goal class (seen from many states ⇒ unlikely a segmenter false positive);
 * :func:`visible_from` — what a state sees; :func:`class_inventory` — which classes a model holds;
-* :func:`action_path` — the shortest action sequence between two states along transitions.
+* :func:`action_path` — the shortest action sequence between two states along transitions;
+* :func:`occupancy` / :func:`known_free` — what the model's states saw of the floor (from their
+  range profiles, :mod:`kgnav.geometry`): is this point known to be free?
+* :func:`trusted_objects` — objects of a class with their evidence and belief
+  (:mod:`kgnav.evidence`).
 
 A class outside the model's vocabulary raises :class:`~kgnav.errors.UnknownClassError`; a class in
 the vocabulary that the model has not seen simply has no objects.
@@ -153,3 +157,41 @@ def summary(model: AbstractModel) -> dict:
         ),
         "classes": class_inventory(model),
     }
+
+
+def occupancy(model: AbstractModel, resolution: float = 0.05):
+    """The :class:`~kgnav.geometry.OccupancyGrid` of the model's range profiles (model frame),
+    or None when its states carry none."""
+    from kgnav.geometry import occupancy_from_scans
+
+    scan = model.scan
+    g = model.graph
+    poses, ranges = [], []
+    for s in model.states():
+        d = g.nodes[s]
+        if "ranges" in d:
+            poses.append((d["x"], d["y"], d["theta"]))
+            ranges.append(d["ranges"])
+    if scan is None or not poses:
+        return None
+    return occupancy_from_scans(scan, poses, ranges, resolution)
+
+
+def known_free(model: AbstractModel, x: float, y: float, grid=None) -> bool:
+    """Whether some state of the model saw the point (x, y) as free floor (no obstacle there).
+    Pass ``grid`` (:func:`occupancy`) when asking many times."""
+    grid = grid if grid is not None else occupancy(model)
+    return grid is not None and grid.state_at(x, y) == "free"
+
+
+def trusted_objects(model: AbstractModel, cls: str, min_belief: float = 0.0) -> list[dict]:
+    """Objects of ``cls`` with their evidence and belief, most believed first."""
+    from kgnav.evidence import belief, object_evidence
+
+    objs = ranked_objects(model, cls)
+    ev = object_evidence(model, [o.id for o in objs])
+    rows = [{"id": o.id, "position": o.position, "belief": round(belief(ev[o.id]), 4),
+             "views": ev[o.id].n_views, "episodes": ev[o.id].n_episodes,
+             "missed": ev[o.id].n_missed, "score": round(ev[o.id].score, 3)} for o in objs]
+    rows = [r for r in rows if r["belief"] >= min_belief]
+    return sorted(rows, key=lambda r: (-r["belief"], -r["views"], _id_order(r["id"])))

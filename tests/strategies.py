@@ -8,6 +8,7 @@ import numpy as np
 from hypothesis import strategies as st
 
 from kgnav import ACTIONS, AbstractModel, Detection
+from kgnav.geometry import ScanGeometry
 
 CLASSES = ("chair", "sofa", "table", "bed")
 DIM = 6
@@ -24,20 +25,32 @@ detection = st.builds(
     st.tuples(*[st.floats(0, 160, allow_nan=False)] * 4),
     st.floats(0, 5, allow_nan=False),
     st.integers(0, 5000),
+    st.floats(0, 1.0, allow_nan=False),
+    st.floats(0, 1, allow_nan=False),
 )
 state = st.tuples(feature, st.tuples(coord, coord, angle), st.lists(detection, max_size=3))
+#: A small scan geometry for range profiles in property tests.
+SCAN = ScanGeometry(79.0, 8, 5.0)
+profile = st.lists(st.floats(0.5, 5.0, allow_nan=False, width=16), min_size=SCAN.bins,
+                   max_size=SCAN.bins)
 
 
 @st.composite
-def models(draw, model_id: str | None = None, min_states: int = 1, max_states: int = 8):
+def models(draw, model_id: str | None = None, min_states: int = 1, max_states: int = 8,
+           scan: bool = False):
+    """Models built through the public API; ``scan``: states carry range profiles."""
     m = AbstractModel(
         feature_dim=DIM,
         model_id=model_id or draw(st.sampled_from(["ma", "mb", "mc"])),
         classes=CLASSES,
+        scan=SCAN if scan else None,
     )
     ids = []
     for f, pose, dets in draw(st.lists(state, min_size=min_states, max_size=max_states)):
-        ids.append(m.add_state(np.array(f, dtype=np.float32), pose, dets))
+        ranges = draw(profile) if scan else None
+        episode = draw(st.integers(0, 2))
+        ids.append(m.add_state(np.array(f, dtype=np.float32), pose, dets, ranges=ranges,
+                               episode=episode))
     n = len(ids)
     for i, a, j in draw(
         st.lists(

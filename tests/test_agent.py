@@ -19,9 +19,9 @@ from kgnav.agent.oracle import OracleAgent
 from kgnav.agent.planner import FMMPlanner, fmm_distance
 from kgnav.agent.policy import FrontierPolicy, cooccurrence, frontiers, make_policy
 from kgnav.agent.segmenter import make_segmenter
-from kgnav.agent.state_creator import AbstractState, StateCreator
+from kgnav.agent.state_creator import StateCreator
 from kgnav.errors import KgnavError
-from kgnav.model import ACTIONS, AbstractModel, Detection
+from kgnav.model import ACTIONS
 from kgnav.sim import ObjectNavEnv
 
 TURN_AROUND = [3] * 12  # twelve right turns of 30 degrees: a full look around
@@ -267,110 +267,13 @@ def test_goal_point_skips_excluded_and_rarely_seen(tiny):
        st.integers(0, 10_000))
 def test_rigid_fit_recovers_a_transform(tx, ty, theta, seed):
     from kgnav import se2
-    from kgnav.agent.loop import _rigid_fit
+    from kgnav.agent.relocation import rigid_fit as _rigid_fit
 
     src = np.random.default_rng(seed).uniform(-4, 4, (6, 2))
     dst = se2.apply_to_points((tx, ty, theta), src)
     fx, fy, ft = _rigid_fit(src, dst)
     assert fx == pytest.approx(tx, abs=1e-6) and fy == pytest.approx(ty, abs=1e-6)
     assert se2.angle_diff(ft, theta) < 1e-6
-
-
-# ---------------------------------------------------------------- relocation checks
-class _Extractor:
-    name, dim = "toy", 8
-
-    def __call__(self, rgb):
-        return np.zeros(8, np.float32)
-
-
-def _unit(i, dim=8):
-    v = np.zeros(dim, np.float32)
-    v[i] = 1.0
-    return v
-
-
-def _house_memory():
-    """A stored model: a room walked along x, a chair and a bed seen from every state."""
-    m = AbstractModel(8, model_id="house-e000", extractor="toy")
-    for k in range(6):
-        dets = [Detection("chair", (1.0 + 0.5 * k, 1.0, 0.5)),
-                Detection("bed", (1.0 + 0.5 * k, -1.0, 0.5))]
-        m.add_state(_unit(k), (0.5 * k, 0.0, 0.0), dets, step=k)
-    return Memory({m.model_id: m}, threshold=0.05), m
-
-
-def _relocated_agent(env, **cfg):
-    memory, stored = _house_memory()
-    agent = ObjectNavAgent(Camera.from_env(env), make_segmenter("clean", 0), _Extractor(),
-                           memory=memory, config=AgentConfig(confirm_matches=1, **cfg))
-    agent.reset("chair", model_id="house-e001", episode=1)
-    state = AbstractState(_unit(0), (0.0, 0.0, 0.0), ())
-    sid = agent.model_.add_state(state.features, state.pose, ())
-    agent._prev = (sid, sid)
-    agent._relocate(state, sid)
-    assert agent.relocation_ is not None and agent.relocation_.model_id == stored.model_id
-    return agent, stored
-
-
-def test_landmarks_that_agree_keep_a_relocation(env):
-    agent, _ = _relocated_agent(env, verify_checks=5)
-    seen = AbstractState(_unit(1), (0.5, 0.0, 0.0),
-                         (Detection("chair", (1.6, 1.1, 0.5)), Detection("bed", (1.4, -0.9, 0.5))))
-    for _ in range(5):
-        assert agent._verify(seen)
-    r = agent.relocation_
-    assert (r.checked, r.supported) == (10, 10)
-    assert agent.mergeable() is r
-
-
-def test_landmarks_that_disagree_undo_a_relocation_and_block_it(env):
-    agent, stored = _relocated_agent(env, verify_checks=5)
-    # where the memory saw a chair and a bed, this episode sees a toilet and a sink
-    wrong = AbstractState(_unit(1), (0.5, 0.0, 0.0), (Detection("toilet", (1.5, 1.0, 0.5)),
-                                                      Detection("sink", (1.5, -1.0, 0.5))))
-    assert agent._verify(wrong)  # 2 checks: too few to judge
-    assert agent._verify(wrong)
-    assert not agent._verify(wrong)  # 6 checks, none supported
-    assert agent.relocation_ is None and agent.current_ is agent.model_
-    assert [u.model_id for u in agent.log_.undone] == [stored.model_id]
-    # the same match is not accepted again; nothing to merge at the end
-    sid = agent.model_.add_state(_unit(0), (0.0, 0.0, 0.0), ())
-    agent._relocate(AbstractState(_unit(0), (0.0, 0.0, 0.0), ()), sid)
-    assert agent.relocation_ is None
-    assert agent.mergeable() is None
-
-
-def test_weak_support_keeps_the_relocation_but_does_not_merge(env):
-    agent, _ = _relocated_agent(env, verify_checks=4, verify_support=0.25, merge_support=0.5)
-    mixed = AbstractState(_unit(1), (0.5, 0.0, 0.0),
-                          (Detection("chair", (1.5, 1.0, 0.5)), Detection("sink", (1.5, -1.0, 0.5)),
-                           Detection("toilet", (1.5, -1.0, 0.5))))
-    for _ in range(3):
-        assert agent._verify(mixed)
-    r = agent.relocation_
-    assert r is not None and r.supported * 3 == r.checked
-    assert agent.mergeable() is None
-
-
-def test_a_goal_the_memory_never_saw_where_it_looked_needs_more_views(env):
-    agent, _ = _relocated_agent(env, novel_goal_views=4)
-    agent.goal = "toilet"
-    near = agent.current_.add_state(_unit(6), (1.0, 0.2, 0.3),
-                                    [Detection("toilet", (1.5, 0.5, 0.5))])
-    far = agent.current_.add_state(_unit(7), (9.0, 0.0, 0.0),
-                                   [Detection("toilet", (12.0, 0.0, 0.5))])
-    objs = {agent.current_.graph.nodes[o]["x"] < 5: o for o in agent.current_.objects()
-            if agent.current_.graph.nodes[o]["cls"] == "toilet"}
-    # made in this episode's model: mark them as this episode's (origin prefix)
-    for o in objs.values():
-        agent.current_.graph.nodes[o]["origin"] = f"house-e001/{o}"
-    assert agent._doubtful() == {objs[True]}  # near the memory's states; the far one is new ground
-    for k in range(3):
-        agent.current_.add_state(_unit(6), (1.0, 0.5 + 0.2 * k, 0.6),
-                                 [Detection("toilet", (1.5, 0.5, 0.5))])
-    assert agent._doubtful() == set()  # seen enough now
-    assert near != far
 
 
 def test_transitions_are_counted_once_per_step(env):

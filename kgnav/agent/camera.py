@@ -70,6 +70,14 @@ class Camera:
         up = self.height_m + d * self.ray_up[:, None]
         return d, left, up
 
+    def column_ranges(self, depth: np.ndarray, band: tuple[float, float]) -> np.ndarray:
+        """Per image column, the z-depth of the nearest point whose height lies in ``band``
+        (what blocks the agent), or ``max_depth`` when none does within range."""
+        d, _left, up = self.points(depth)
+        far = d >= self.max_depth - 1e-3  # no return within range
+        blocking = (up > band[0]) & (up < band[1]) & ~far
+        return np.where(blocking, d, np.float32(self.max_depth)).min(axis=0)
+
     def point(self, u: float, v: float, depth: float) -> tuple[float, float, float]:
         """The agent-frame point of (sub)pixel (u, v) at z-depth ``depth``."""
         r = (u + 0.5 - self.width / 2) / self.focal

@@ -1,18 +1,20 @@
 """The ObjectNav agent: the paper's per-step cycle, wiring the parts and nothing more.
 
-1. **Knowledge extraction**: segment the RGB-D frame, extract the state features, build the
-   abstract state ``s = <F_s, C_s, {F_s,c}>``.
+1. **Knowledge extraction**: segment the RGB-D frame, extract the state features and the range
+   profile, build the abstract state ``s = <F_s, C_s, {F_s,c}>``.
 2. **Knowledge modelling**: fuse the frame into the episode map; add ``s`` and the transition
-   ``(s_prev, a, s)`` to the current Abstract Model; with a memory, until a match was made in
-   this episode, match ``s`` against every stored state and on a match merge the current model
-   into the matched one, which becomes the current model.
-3. **Reasoning**: if the current model holds the goal class, head for the paper's goal point
-   (top five most-seen, then closest); otherwise explore with the global policy; plan with
-   Fast Marching; act.
+   ``(s_prev, a, s)`` to the current Abstract Model; with a memory, let the
+   :class:`~kgnav.agent.relocation.Relocalizer` propose and verify relocations; on one, merge
+   the current model into the matched one (which becomes the current model) and seed the
+   episode map with what that model saw of the place.
+3. **Reasoning**: if the current model holds a trusted object of the goal class
+   (:mod:`kgnav.agent.goals`), head for it; otherwise explore with the global policy; plan
+   with Fast Marching; act. Before stopping at an object, see it again from close range.
 
 With a memory, the *hard* strategy trusts a remembered goal point and stops there; the *soft*
 strategy searches an area around it, of a radius proportional to the distance from the agent at
 the match to the goal, and keeps watching the live segmentation for the goal on the way.
+:meth:`AgentConfig.paper` gives the paper's own settings.
 """
 
 from __future__ import annotations
@@ -22,50 +24,62 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from kgnav import query, se2
+from kgnav import se2
 from kgnav.agent.camera import Camera
 from kgnav.agent.features import FeatureExtractor
+from kgnav.agent.goals import GoalConfig, choose_goal
 from kgnav.agent.mapping import EpisodeMap, MapBuilder
 from kgnav.agent.memory import Memory
 from kgnav.agent.planner import FMMPlanner, Plan
 from kgnav.agent.policy import FrontierPolicy, GlobalPolicy
+from kgnav.agent.relocation import Relocalizer, Relocation, RelocationConfig
 from kgnav.agent.state_creator import AbstractState, StateCreator
+from kgnav.evidence import ScanTable
 from kgnav.merge import merge
 from kgnav.model import ACTIONS, AbstractModel
 
 STRATEGIES = ("hard", "soft")
 
+__all__ = ["AgentConfig", "EpisodeLog", "ObjectNavAgent", "Percept", "Relocation", "Target"]
+
 
 @dataclass(frozen=True)
 class AgentConfig:
-    """Tunable behaviour. Distances in metres."""
+    """Tunable behaviour. Distances in metres. The defaults are the best settings found on the
+    ``train`` houses; :meth:`paper` returns the paper's."""
 
     stop_distance: float = 0.8  # call stop this close to a goal point (success is 1 m)
     explore_interval: int = 25  # steps between global-policy decisions (the paper's 25)
     explore_radius: float = 0.25  # an exploration goal counts as reached this close
-    top_k: int = query.TOP_K
-    min_goal_views: int = 2  # a goal seen from one state only is likely a segmenter glitch
     strategy: str = "soft"  # with memory: "hard" or "soft"
     soft_radius_factor: float = 0.25  # soft search radius per metre from match to goal
     soft_radius_bounds: tuple[float, float] = (1.0, 3.0)
-    soft_search_steps: int = 40  # look around a remembered goal this long before dropping it
     stall_steps: int = 40  # steps without progress toward an object before giving it up
-    confirm_matches: int = 2  # agreeing matches needed to relocate (1: the paper's first)
-    confirm_window: int = 10  # steps within which they must fall
-    confirm_tolerance: tuple[float, float] = (0.5, 15.0)  # m, degrees between transforms
-    refine_radius: float = 1.5  # landmark pairing radius for transform refinement (0: off)
-    refine_pairs: int = 60  # most recent landmark pairs used
-    verify_checks: int = 15  # landmark checks before a relocation may be undone (0: never)
-    verify_support: float = 0.25  # undo it when fewer checks than this share find their class
-    merge_support: float = 0.5  # at the episode's end, merge into the matched model only above
-    novel_goal_views: int = 4  # views a goal the memory never saw needs where it has looked
-    known_area: float = 1.5  # m: the memory "has looked" within this of its states
-    map_size: int = 480
+    goals: GoalConfig = field(default_factory=GoalConfig)
+    relocation: RelocationConfig = field(default_factory=RelocationConfig)
+    seed_map: bool = True  # after a relocation, plan with what the stored model saw
+    confirm_distance: float = 2.5  # see an object this close before stopping at it (0: off)
+    confirm_steps: int = 8  # turns spent looking for it on arrival before giving it up
+    map_size: int = 480  # starting side in cells; the map grows
     map_resolution: float = 0.05
 
     def __post_init__(self):
         if self.strategy not in STRATEGIES:
             raise ValueError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
+
+    @classmethod
+    def paper(cls, **overrides) -> AgentConfig:
+        """The paper's settings: goal = closest of the five most-seen objects (seen once is
+        enough), relocation on the first feature match with no verification, no landmark
+        checks, no remembered geometry, stop on arrival."""
+        base = cls(goals=GoalConfig(rule="views", min_views=1),
+                   relocation=RelocationConfig(geometry=False, confirm_matches=1,
+                                               landmark_radius=0.0, bridge_interval=0),
+                   seed_map=False, confirm_distance=0.0)
+        return replace(base, **overrides)
+
+
+PRESETS = {"default": AgentConfig, "paper": AgentConfig.paper}
 
 
 @dataclass
@@ -80,6 +94,7 @@ class Target:
     radius: float = 0.0  # soft strategy: the search area around a remembered goal
     stage: str = "area"  # soft strategy: reach the area, look around, then the point itself
     scan_left: int | None = None
+    seen_close: bool = False  # seen from within confirm_distance while heading for it
 
     @property
     def key(self):
@@ -91,26 +106,13 @@ class Target:
 
 
 @dataclass
-class Relocation:
-    """The match made in this episode (at most one, as in the paper)."""
-
-    step: int
-    model_id: str
-    state_id: str
-    distance: float
-    transform: tuple[float, float, float]  # episode frame -> model frame
-    at: tuple[float, float] | None = None  # agent position at the match, episode frame
-    checked: int = 0  # detections mapped where the stored model knows some object
-    supported: int = 0  # ... of which found a remembered object of their own class
-
-
-@dataclass
 class Percept:
     """Output of knowledge extraction for one step."""
 
     segmentation: object
     state: AbstractState
     depth: np.ndarray
+    columns: np.ndarray  # per image column, the range to the first obstacle
 
 
 @dataclass
@@ -150,7 +152,9 @@ class ObjectNavAgent:
         self.memory = memory
         self.config = config or AgentConfig()
         self.map_builder = MapBuilder(camera, self.config.map_size, self.config.map_resolution)
-        self.state_creator = StateCreator(camera)
+        self.state_creator = StateCreator(camera, obstacle_band=self.map_builder.obstacle_band)
+        self.relocalizer = (Relocalizer(memory, self.config.relocation)
+                            if memory is not None else None)
 
     # ------------------------------------------------------------------ episode
     def reset(self, goal_class: str, *, seed: int = 0, scene: str = "", episode: int = 0,
@@ -160,11 +164,13 @@ class ObjectNavAgent:
         self.segmenter.reset(seed, scene)
         self.policy.reset(seed)
         self.planner.reset()
+        if self.relocalizer is not None:
+            self.relocalizer.reset()
         self.map_: EpisodeMap = self.map_builder.reset()
         self.model_ = AbstractModel(self.extractor.dim, model_id=model_id,
-                                    extractor=self.extractor.name)
+                                    extractor=self.extractor.name, scan=self.state_creator.scan)
         self.current_: AbstractModel = self.model_  # the merged model after a relocation
-        self.relocation_: Relocation | None = None
+        self._scans = ScanTable(self.model_)  # range profiles of current_'s states
         self.log_ = EpisodeLog()
         self.step_ = 0
         self._prev: tuple[str, str] | None = None  # (state in model_, state in current_)
@@ -175,9 +181,12 @@ class ObjectNavAgent:
         self._explore_age = 0
         self._best = (math.inf, 0)  # closest approach to the object target, and when
         self._bumps = 0  # consecutive blocked forward moves
-        self._candidates: list[tuple[int, str, tuple]] = []  # recent matches awaiting support
-        self._pairs: list[tuple] = []  # (episode x, y, remembered x, y, object) landmarks
         self._escape: list[str] = []  # scripted way out after repeated bumps
+
+    @property
+    def relocation_(self) -> Relocation | None:
+        """The relocation standing in this episode (model, state, distance, transform)."""
+        return self.relocalizer.relocation if self.relocalizer is not None else None
 
     def act(self, obs) -> int:
         """One step of the paper's cycle; returns the simulator action index."""
@@ -192,8 +201,9 @@ class ObjectNavAgent:
     def extract(self, obs) -> Percept:
         seg = self.segmenter(obs["rgb"], obs["depth"], obs.get("semantic"))
         features = self.extractor(obs["rgb"])
-        state = self.state_creator(features, seg, obs["depth"], obs["pose"])
-        return Percept(seg, state, obs["depth"])
+        columns = self.camera.column_ranges(obs["depth"], self.map_builder.obstacle_band)
+        state = self.state_creator(features, seg, obs["depth"], obs["pose"], columns)
+        return Percept(seg, state, obs["depth"], columns)
 
     # ------------------------------------------------------------------ 2. modelling
     def model_knowledge(self, p: Percept) -> None:
@@ -207,12 +217,19 @@ class ObjectNavAgent:
             self._bumps = 0
         self._prev_pose = pose
 
-        sid = self.model_.add_state(p.state.features, pose, p.state.detections,
-                                    episode=self.episode, step=self.step_)
+        s = p.state
+        sid = self.model_.add_state(s.features, pose, s.detections, episode=self.episode,
+                                    step=self.step_, ranges=s.ranges)
         cur = sid
-        if self.current_ is not self.model_ and self._verify(p.state):
-            self._refine(p.state)
-            cur = self._add_to_current(p.state)
+        reloc = self.relocalizer
+        if self.relocation_ is not None:
+            if reloc.check(s, self.step_):
+                reloc.refine(s)
+                cur = self._add_to_current(s)
+            else:
+                self._undo()
+        elif self.current_ is self.model_:
+            self._note_scan(sid)
         if self._prev is not None and self._last_action is not None:
             self.model_.add_transition(self._prev[0], self._last_action, sid)
             if (self.current_ is not self.model_ and cur is not None
@@ -221,112 +238,46 @@ class ObjectNavAgent:
         self._prev = (sid, cur)
         if self.current_ is self.model_:
             self._seen_here.update(self.model_.graph.successors(sid))
-        if self.memory is not None and self.relocation_ is None:
-            self._relocate(p.state, sid)
+        if reloc is not None:
+            new = reloc.observe(self.step_, s, self.state_creator.scan)
+            if new is not None:
+                self._relocated(new, sid)
 
-    def _confirmed(self, model_id: str, T) -> bool:
-        """Accept a match once ``confirm_matches`` matches within a few steps agree on the
-        model and on the frame transform: a single look-alike view can put the agent in the
-        wrong house or metres off, and everything reused would then be misplaced."""
-        need = self.config.confirm_matches
-        if need <= 1:
-            return True
-        window = self.config.confirm_window
-        self._candidates = [c for c in self._candidates if self.step_ - c[0] < window]
-        agree = [c for c in self._candidates if c[1] == model_id and self._agree(c[2], T)]
-        self._candidates.append((self.step_, model_id, tuple(T)))
-        return len(agree) + 1 >= need
+    def _relocated(self, r: Relocation, sid: str) -> None:
+        stored = self.memory.model(r.model_id)
+        self.current_ = merge(stored, self.model_, transform=r.transform)
+        self._scans = ScanTable(self.current_)
+        # objects of the merged model that this episode perceived: those merged from model_
+        prefix = f"{self.model_.model_id}/"
+        self._seen_here = {
+            o for o in self.current_.objects()
+            if any(s.startswith(prefix) for s in self.current_.graph.nodes[o]["origin"].split())
+        }
+        self._prev = (sid, self.current_.known_node(f"{prefix}{sid}"))
+        self._target = None  # re-decide with the knowledge just gained
+        if self.config.seed_map:
+            geo = self.memory.geometry(r.model_id)
+            if geo is not None:
+                self.map_builder.seed(geo.grid, r.transform)
 
-    def _agree(self, a, b) -> bool:
-        tol_xy, tol_th = self.config.confirm_tolerance
-        return (math.dist(a[:2], b[:2]) <= tol_xy
-                and se2.angle_diff(a[2], b[2]) <= math.radians(tol_th))
-
-    def _verify(self, state: AbstractState) -> bool:
-        """Check the relocation against landmarks; undo it when they refute it.
-
-        Each detection mapped into the stored model's frame where that model knows some object
-        nearby is a check; it supports the relocation when one of those objects has its class.
-        A wrong match (a look-alike room elsewhere, a rotated twin) places the episode's objects
-        among unrelated ones, and merging it at the episode's end would corrupt the stored model
-        for every later episode. Returns whether the relocation stands.
-        """
-        r = self.config.refine_radius
-        if r <= 0:
-            return True
-        reloc = self.relocation_
-        xy, cls = self._landmarks
-        if len(cls):
-            for d in state.detections:
-                x, y = se2.apply_to_point(reloc.transform, *d.position[:2])
-                near = np.hypot(xy[:, 0] - x, xy[:, 1] - y) <= r
-                if near.any():
-                    reloc.checked += 1
-                    reloc.supported += bool((cls[near] == d.cls).any())
-        if not self._refuted(reloc, self.config.verify_support):
-            return True
-        self.log_.undone.append(reloc)
-        self.relocation_ = None
+    def _undo(self) -> None:
+        """Back to the episode's own model: the relocation was refuted."""
+        self.log_.undone.append(self.relocalizer.undone[-1])
         self.current_ = self.model_
+        self._scans = ScanTable(self.model_)
         self._seen_here = set(self.model_.objects())
         self._prev = (self._prev[0], self._prev[0]) if self._prev else None
-        self._pairs, self._candidates = [], []
         self.log_.rejected = []  # object ids of the merged model, meaningless now
         self._target = None
-        return False
+        m = self.map_
+        if m.prior_obstacle is not None:  # forget what the wrong memory said of the place
+            m.prior_obstacle = m.prior_explored = None
+            m.generation += 1
 
-    def _refine(self, state: AbstractState) -> None:
-        """Correct the relocation's frame transform with landmarks.
-
-        One matched view fixes the transform only as well as the two poses agree (the paper's
-        "imperfect match"). Each object seen after the match is paired with the nearest
-        remembered object of its class; every few pairs the rigid transform that best maps
-        the episode's observations onto the remembered positions (least squares, one round of
-        outlier rejection) replaces the current one, unless it moves implausibly far.
-        """
-        if self.config.refine_radius <= 0:
-            return
-        stored = self.memory.model(self.relocation_.model_id)
-        T = self.relocation_.transform
-        for d in state.detections:
-            x, y = se2.apply_to_point(T, *d.position[:2])
-            hit = stored.nearest_object(d.cls, x, y, self.config.refine_radius)
-            if hit is not None:
-                o = stored.graph.nodes[hit]
-                self._pairs.append((d.position[0], d.position[1], o["x"], o["y"], hit))
-        self._pairs = self._pairs[-self.config.refine_pairs:]
-        if len({p[4] for p in self._pairs}) < 3 or len(self._pairs) % 5:
-            return
-        pts = np.array([p[:4] for p in self._pairs], float)
-        new = _rigid_fit(pts[:, :2], pts[:, 2:])
-        res = np.hypot(*(se2.apply_to_points(new, pts[:, :2]) - pts[:, 2:]).T)
-        keep = res <= max(0.5, 2.0 * float(np.median(res)))
-        if keep.sum() >= 3:
-            new = _rigid_fit(pts[keep, :2], pts[keep, 2:])
-        at = self.relocation_.at
-        moved = math.dist(se2.apply_to_point(new, *at), se2.apply_to_point(T, *at))
-        if moved <= 1.5 and se2.angle_diff(new[2], T[2]) <= math.radians(30):
-            self.relocation_.transform = tuple(float(v) for v in new)
-
-    def _doubtful(self) -> set[str]:
-        """Goal-class objects of the merged model that only this episode has seen, where the
-        stored model has been before, and that are not yet seen from ``novel_goal_views``
-        states: the memory looked there and saw no such thing, so one more glimpse is
-        likelier a segmenter false positive than a goal."""
-        if self.relocation_ is None or self.config.novel_goal_views <= self.config.min_goal_views:
-            return set()
-        g, prefix = self.current_.graph, f"{self.model_.model_id}/"
-        out = set()
-        for o in self.current_._index.by_class.get(self.goal, ()):
-            d = g.nodes[o]
-            if d["n_views"] >= self.config.novel_goal_views:
-                continue
-            if not all(s.startswith(prefix) for s in d["origin"].split()):
-                continue  # remembered
-            gap = np.hypot(self._walked[:, 0] - d["x"], self._walked[:, 1] - d["y"])
-            if len(gap) and gap.min() <= self.config.known_area:
-                out.add(o)
-        return out
+    def _note_scan(self, sid: str) -> None:
+        d = self.current_.graph.nodes[sid]
+        if "ranges" in d and (not self._scans.ids or self._scans.ids[-1] != sid):
+            self._scans.add(sid, (d["x"], d["y"], d["theta"]), d["ranges"])
 
     def _to_model(self, pose) -> tuple[float, float, float]:
         return se2.compose(self.relocation_.transform, pose)
@@ -336,54 +287,16 @@ class ObjectNavAgent:
         dets = [replace(d, position=(*se2.apply_to_point(T, *d.position[:2]), d.position[2]))
                 for d in state.detections]
         cur = self.current_.add_state(state.features, self._to_model(state.pose), dets,
-                                      episode=self.episode, step=self.step_)
+                                      episode=self.episode, step=self.step_,
+                                      ranges=state.ranges)
+        self._note_scan(cur)
         self._seen_here.update(self.current_.graph.successors(cur))
         return cur
 
-    def _relocate(self, state: AbstractState, sid: str) -> None:
-        m = self.memory.match(state.features)
-        if m is None:
-            return
-        stored = self.memory.model(m.model_id)
-        T = se2.anchor_transform(stored.pose(m.state_id), state.pose)
-        if any(u.model_id == m.model_id and self._agree(u.transform, T)
-               for u in self.log_.undone):
-            return  # refuted already
-        if not self._confirmed(m.model_id, T):
-            return
-        self.relocation_ = Relocation(self.step_, m.model_id, m.state_id, m.distance,
-                                      tuple(float(v) for v in T),
-                                      (float(state.pose[0]), float(state.pose[1])))
-        self.current_ = merge(stored, self.model_, transform=T)
-        # objects of the merged model that this episode perceived: those merged from model_
-        prefix = f"{self.model_.model_id}/"
-        self._seen_here = {
-            o for o in self.current_.objects()
-            if any(s.startswith(prefix) for s in self.current_.graph.nodes[o]["origin"].split())
-        }
-        self._prev = (sid, self.current_.known_node(f"{prefix}{sid}"))
-        self._target = None  # re-decide with the knowledge just gained
-        nodes = stored.graph.nodes
-        self._walked = np.array([(nodes[n]["x"], nodes[n]["y"]) for n in stored.states()],
-                                float).reshape(-1, 2)
-        objs = list(stored.objects())
-        self._landmarks = (np.array([(nodes[o]["x"], nodes[o]["y"]) for o in objs],
-                                    float).reshape(-1, 2),
-                           np.array([nodes[o]["cls"] for o in objs], dtype=object))
-
     def mergeable(self) -> Relocation | None:
         """The relocation to merge this episode's model with at its end, or None to store it
-        as a new model: a relocation that stood in the episode but that landmarks supported
-        only weakly would misplace a whole episode in the stored model for good."""
-        r = self.relocation_
-        if r is None or self._refuted(r, self.config.merge_support):
-            return None
-        return r
-
-    def _refuted(self, r: Relocation, share: float) -> bool:
-        """Enough landmark checks (``verify_checks``), and fewer than ``share`` support ``r``."""
-        need = self.config.verify_checks
-        return need > 0 and r.checked >= need and r.supported < share * r.checked
+        as a new model (see :meth:`Relocalizer.mergeable`)."""
+        return self.relocalizer.mergeable() if self.relocalizer is not None else None
 
     # ------------------------------------------------------------------ 3. reasoning
     @property
@@ -401,6 +314,7 @@ class ObjectNavAgent:
         for _ in range(3):  # a target reached or given up is replaced within the step
             if target is None:
                 return "turn_left"  # nothing known and nothing left to explore: look around
+            self._note_close(target, p)
             plan = self.planner.plan(self.map_, p.state.pose, self._goal_mask(target),
                                      key=target.key)
             action = (self._approach(target, plan, p) if target.is_object
@@ -417,10 +331,25 @@ class ObjectNavAgent:
             return None
         return plan.action
 
+    def _note_close(self, target: Target, p: Percept) -> None:
+        """Whether the goal was seen near the target point from close range in this frame
+        (where segmenters are most reliable)."""
+        limit = self.config.confirm_distance
+        if target.seen_close or not target.is_object or limit <= 0:
+            return
+        for d in p.state.detections:
+            if (d.cls == self.goal and d.distance <= limit
+                    and math.dist(d.position[:2], target.point) <= 1.0 + d.radius):
+                target.seen_close = True
+                return
+
     def _approach(self, target: Target, plan: Plan, p: Percept) -> str | None:
         if plan.reached:
             if target.source == "memory" and self._soft:
                 return self._search(target)
+            if (self.config.confirm_distance > 0 and not target.seen_close
+                    and not (target.source == "memory" and self.config.strategy == "hard")):
+                return self._confirm(target, p)
             self.log_.stop_reason = f"reached {target.source} goal"
             return "stop"
         if not math.isfinite(plan.distance):
@@ -434,6 +363,20 @@ class ObjectNavAgent:
                 return "stop"
             return self._drop(target)
         return plan.action
+
+    def _confirm(self, target: Target, p: Percept) -> str | None:
+        """At an object not yet seen from close range: turn toward it for a few steps; give
+        it up if it does not show (likely a far-away false positive)."""
+        if target.scan_left is None:
+            target.scan_left = self.config.confirm_steps
+        target.scan_left -= 1
+        if target.scan_left < 0:
+            return self._drop(target)
+        x, y, th = p.state.pose
+        err = se2.wrap_angle(math.atan2(target.point[1] - y, target.point[0] - x) - th)
+        if abs(err) > math.radians(20):
+            return "turn_left" if err > 0 else "turn_right"
+        return "turn_left" if target.scan_left % 2 else "turn_right"  # glance around it
 
     def _search(self, target: Target) -> str | None:
         """Soft strategy at a remembered goal: look all around (12 turns of 30°) on reaching
@@ -493,14 +436,14 @@ class ObjectNavAgent:
         return t
 
     def _model_goal(self, pose) -> Target | None:
-        """The paper's goal point from the current model, mapped into the episode frame."""
+        """The goal point from the current model (:mod:`kgnav.agent.goals`), mapped into the
+        episode frame."""
         model = self.current_
         if self.goal not in model.classes:
             return None
         near = pose[:2] if self.relocation_ is None else self._to_model(pose)[:2]
-        info = query.goal_point(model, self.goal, near, self.config.top_k,
-                                exclude=set(self.log_.rejected) | self._doubtful(),
-                                min_views=self.config.min_goal_views)
+        info = choose_goal(model, self.goal, near, self.config.goals,
+                           exclude=set(self.log_.rejected), table=self._scans)
         if info is None:
             return None
         xy = info.position[:2]
@@ -515,28 +458,24 @@ class ObjectNavAgent:
 
     def _live_goal(self, p: Percept) -> Target | None:
         """The goal in the current frame: the nearest goal-class object the current state
-        sees, if it has been seen from enough states to be trusted."""
+        sees, if the goal rule would trust it."""
         model, sid = self.current_, self._prev[1] if self._prev else None
         if sid is None or self.goal is None:
             return None
         g = model.graph
-        best, doubtful = None, self._doubtful()
-        for o, edges in g.adj[sid].items():
-            d = g.nodes[o]
-            if d["kind"] != "object" or d["cls"] != self.goal:
-                continue
-            if (d["n_views"] < self.config.min_goal_views or o in self.log_.rejected
-                    or o in doubtful):
-                continue
-            dist = min(e.get("distance", math.inf) for e in edges.values())
-            if best is None or dist < best[0]:
-                best = (dist, o, (d["x"], d["y"]))
-        if best is None:
+        seen = [o for o in g.adj[sid] if g.nodes[o]["kind"] == "object"
+                and g.nodes[o]["cls"] == self.goal and o not in self.log_.rejected]
+        if not seen:
             return None
-        xy = best[2]
+        near = self._to_model(p.state.pose)[:2] if self.relocation_ else p.state.pose[:2]
+        info = choose_goal(model, self.goal, near, self.config.goals,
+                           exclude=self.log_.rejected, table=self._scans, among=set(seen))
+        if info is None:
+            return None
+        xy = info.position[:2]
         if self.relocation_ is not None:
             xy = se2.apply_to_point(se2.inverse(self.relocation_.transform), *xy)
-        return Target("live", (float(xy[0]), float(xy[1])), best[1])
+        return Target("live", (float(xy[0]), float(xy[1])), info.id)
 
     def _goal_mask(self, t: Target) -> np.ndarray:
         m = self.map_
@@ -558,15 +497,3 @@ class ObjectNavAgent:
         ii, jj = np.ogrid[i0:i1, j0:j1]
         mask[i0:i1, j0:j1] = (ii - i) ** 2 + (jj - j) ** 2 <= k * k
         return mask
-
-
-def _rigid_fit(src: np.ndarray, dst: np.ndarray) -> tuple[float, float, float]:
-    """The SE(2) transform minimising squared distances from mapped ``src`` to ``dst``
-    (2-D Kabsch)."""
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    a, b = src - cs, dst - cd
-    theta = math.atan2(float((a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]).sum()),
-                       float((a * b).sum()))
-    c, s = math.cos(theta), math.sin(theta)
-    t = cd - np.array([c * cs[0] - s * cs[1], s * cs[0] + c * cs[1]])
-    return float(t[0]), float(t[1]), theta

@@ -13,7 +13,10 @@ Channels:
   image column (the free space the agent has seen) plus every obstacle cell;
 * ``semantic[c]``: per class, how many segmented pixels (subsampled) landed in the cell: an
   evidence count, fused over time like the other channels;
-* ``bumped``: cells where the agent collided with something the map missed (the planner's).
+* ``bumped``: cells where the agent collided with something the map missed (the planner's);
+* ``prior_obstacle`` / ``prior_explored`` (after :meth:`MapBuilder.seed`): what a remembered
+  Abstract Model knows of the place, mapped with a relocation; the agent's own view overrides
+  it (a cell it sees free loses its remembered obstacle).
 
 Rows are y, columns x: cell ``(i, j)`` has centre ``((j - oj + 0.5) * res, (i - oi + 0.5) * res)``
 where ``origin = (oi, oj)`` is the cell holding the episode start. Growing shifts ``origin`` and
@@ -41,6 +44,7 @@ import numpy as np
 
 from kgnav.agent.camera import Camera
 from kgnav.classes import OBJECT_CLASSES
+from kgnav.geometry import OccupancyGrid
 
 
 @dataclass
@@ -54,7 +58,9 @@ class EpisodeMap:
     classes: tuple[str, ...] = OBJECT_CLASSES
     origin: tuple[int, int] | None = None  # cell of the episode start; default: the centre
     bumped: np.ndarray | None = None  # uint8 0/1, same shape
-    generation: int = 0  # bumped on every growth: cell indices held elsewhere are stale
+    generation: int = 0  # bumped on every growth or seeding: what others derived is stale
+    prior_obstacle: np.ndarray | None = None  # uint8 0/1: obstacles a memory knows of
+    prior_explored: np.ndarray | None = None  # uint8 0/1: space a memory has seen
 
     def __post_init__(self):
         if self.origin is None:
@@ -89,6 +95,20 @@ class EpisodeMap:
     def inside(self, i: int, j: int) -> bool:
         return 0 <= i < self.obstacle.shape[0] and 0 <= j < self.obstacle.shape[1]
 
+    def blocked(self, crop=None) -> np.ndarray:
+        """uint8 obstacles, bumps and remembered obstacles (over ``crop`` = (i0, i1, j0, j1))."""
+        i0, i1, j0, j1 = crop if crop is not None else (0, self.shape[0], 0, self.shape[1])
+        occ = self.obstacle[i0:i1, j0:j1] | self.bumped[i0:i1, j0:j1]
+        if self.prior_obstacle is not None:
+            occ = occ | self.prior_obstacle[i0:i1, j0:j1]
+        return occ
+
+    def known(self) -> np.ndarray:
+        """uint8 cells seen by the agent or, before it, by a remembered model."""
+        if self.prior_explored is None:
+            return self.explored
+        return self.explored | self.prior_explored
+
     def class_mask(self, cls: str, min_count: int = 1) -> np.ndarray:
         """Cells with at least ``min_count`` evidence of class ``cls``."""
         return self.semantic[self.classes.index(cls)] >= min_count
@@ -107,6 +127,9 @@ class EpisodeMap:
         self.obstacle = np.pad(self.obstacle, pad)
         self.explored = np.pad(self.explored, pad)
         self.bumped = np.pad(self.bumped, pad)
+        if self.prior_obstacle is not None:
+            self.prior_obstacle = np.pad(self.prior_obstacle, pad)
+            self.prior_explored = np.pad(self.prior_explored, pad)
         self.semantic = np.pad(self.semantic, [(0, 0), *pad])
         self.origin = (self.origin[0] + pad[0][0], self.origin[1] + pad[1][0])
         self.generation += 1
@@ -199,8 +222,15 @@ class MapBuilder:
         fwd = col_free
         lft = -col_free * cam.ray_right
         ci, cj = self._cells(pose, np.concatenate([[0.0], fwd]), np.concatenate([[0.0], lft]))
-        poly = np.stack([cj, ci], axis=1).astype(np.int32)
-        cv2.fillPoly(m.explored, [poly], 1)
+        i0, i1 = max(int(ci.min()), 0), min(int(ci.max()) + 1, H)
+        j0, j1 = max(int(cj.min()), 0), min(int(cj.max()) + 1, W)
+        if i0 < i1 and j0 < j1:
+            # drawn on a window: what the agent sees free overrides what a memory said
+            fan = np.zeros((i1 - i0, j1 - j0), np.uint8)
+            cv2.fillPoly(fan, [np.stack([cj - j0, ci - i0], axis=1).astype(np.int32)], 1)
+            m.explored[i0:i1, j0:j1] |= fan
+            if m.prior_obstacle is not None:
+                m.prior_obstacle[i0:i1, j0:j1] &= 1 - fan
 
         # obstacles
         if blocking.any():
@@ -211,6 +241,50 @@ class MapBuilder:
 
         if segmentation is not None:
             self._fuse_semantic(m, pose, forward, left, far, segmentation)
+        return m
+
+    def seed(self, grid: OccupancyGrid, transform) -> EpisodeMap:
+        """Add a remembered :class:`~kgnav.geometry.OccupancyGrid` (in a model's frame) to the
+        map as prior knowledge: ``transform`` maps the episode frame into the model frame (a
+        relocation's). Known-free cells join ``prior_explored``; obstacles ``prior_obstacle``
+        (which the agent's own view clears again where it sees free space). The map grows to
+        hold the remembered area (up to ``max_size``)."""
+        m = self.map_ if self.map_ is not None else self.reset()
+        tx, ty, th = (float(v) for v in transform)
+        c, s = math.cos(th), math.sin(th)
+        gh, gw = grid.free.shape
+        # the grid's corners in the episode frame (inverse of the model <- episode transform)
+        xs = grid.x0 + np.array([0, gw, 0, gw]) * grid.resolution - tx
+        ys = grid.y0 + np.array([0, 0, gh, gh]) * grid.resolution - ty
+        ex, ey = c * xs + s * ys, -s * xs + c * ys
+        a, b = m.to_cell(float(ex.min()), float(ey.min()))
+        a2, b2 = m.to_cell(float(ex.max()), float(ey.max()))
+        m.cover(a - 1, a2 + 2, b - 1, b2 + 2, limit=self.max_size)
+        a, b = m.to_cell(float(ex.min()), float(ey.min()))
+        a2, b2 = m.to_cell(float(ex.max()), float(ey.max()))
+        H, W = m.shape
+        i0, i1, j0, j1 = max(a - 1, 0), min(a2 + 2, H), max(b - 1, 0), min(b2 + 2, W)
+        if i0 >= i1 or j0 >= j1:
+            return m
+        # window cell (i, j) -> episode point -> model point -> grid cell
+        (oi, oj), r, rg = m.origin, m.resolution, grid.resolution
+        k = r / rg
+        ox, oy = (j0 - oj + 0.5) * r, (i0 - oi + 0.5) * r
+        M = np.array([[c * k, -s * k, (c * ox - s * oy + tx - grid.x0) / rg - 0.5],
+                      [s * k, c * k, (s * ox + c * oy + ty - grid.y0) / rg - 0.5]])
+        size = (j1 - j0, i1 - i0)
+        flags = cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP
+        obst = grid.obstacle.astype(np.uint8)
+        free = grid.known_free.astype(np.uint8)
+        w_obst = cv2.warpAffine(obst, M, size, flags=flags, borderValue=0)
+        w_free = cv2.warpAffine(free, M, size, flags=flags, borderValue=0)
+        if m.prior_obstacle is None:
+            m.prior_obstacle = np.zeros_like(m.obstacle)
+            m.prior_explored = np.zeros_like(m.explored)
+        seen_free = m.explored[i0:i1, j0:j1] & (1 - m.obstacle[i0:i1, j0:j1])
+        m.prior_explored[i0:i1, j0:j1] |= w_free | w_obst
+        m.prior_obstacle[i0:i1, j0:j1] |= w_obst & (1 - seen_free)
+        m.generation += 1  # planners must replan with what is now known
         return m
 
     def _fuse_semantic(self, m, pose, forward, left, far, segmentation) -> None:

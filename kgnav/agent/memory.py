@@ -3,7 +3,9 @@
 The agent is never told which environment it is in; the memory holds every stored model and
 relocation picks one by matching the current state's features (the paper's ``s*``). The memory
 is a read-only snapshot for the episode: what the episode learns goes back to the store at its
-end (see :mod:`kgnav.evaluation.runner`).
+end (see :mod:`kgnav.evaluation.runner`). Each model's occupancy (what its states' range
+profiles saw, :mod:`kgnav.geometry`) is built on first use and kept, to verify relocations and
+seed the episode map.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ class Memory:
         self.models = dict(models)
         self.relocator = Relocator(threshold=threshold, backend=backend).fit(
             self.models.values())
+        self._geometry: dict = {}
 
     @property
     def threshold(self) -> float:
@@ -36,5 +39,20 @@ class Memory:
             return None
         return self.relocator.match(features)
 
+    def nearest(self, features, k: int = 1) -> list[Match]:
+        """The ``k`` stored states nearest in feature space, best first (any distance)."""
+        if not self.models:
+            return []
+        return self.relocator.nearest(features, k)
+
     def model(self, model_id: str) -> AbstractModel:
         return self.models[model_id]
+
+    def geometry(self, model_id: str):
+        """The model's :class:`~kgnav.agent.relocation.StoredGeometry` (None without range
+        profiles), built once."""
+        if model_id not in self._geometry:
+            from kgnav.agent.relocation import StoredGeometry
+
+            self._geometry[model_id] = StoredGeometry.of(self.models[model_id])
+        return self._geometry[model_id]

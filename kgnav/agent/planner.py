@@ -174,7 +174,7 @@ class FMMPlanner:
         agent is walled in by its own conservative map (a doorway closed by inflation).
         """
         i0, i1, j0, j1 = crop
-        occ = m.obstacle[i0:i1, j0:j1] | m.bumped[i0:i1, j0:j1]
+        occ = m.blocked(crop)
         pad = self.agent_radius + (-self.margin if squeeze else self.margin)
         trav = cv2.dilate(occ, disc(math.ceil(pad / m.resolution))) == 0
         # the agent's own cell and a little around it stay free, or it could never leave

@@ -59,10 +59,12 @@ def make_policy(name: str, **params) -> GlobalPolicy:
 def frontiers(m: EpisodeMap, min_cells: int = 6) -> tuple[np.ndarray, np.ndarray]:
     """Frontier clusters: (label image, cell count per label; label 0 is "not a frontier").
 
-    A frontier cell is explored, not an obstacle, and touches an unexplored cell.
+    A frontier cell is known (seen by the agent, or by a remembered model mapped in after a
+    relocation), not an obstacle, and touches an unknown cell.
     """
-    free = (m.explored > 0) & (m.obstacle == 0)
-    unknown = (m.explored == 0).astype(np.uint8)
+    known = m.known()
+    free = (known > 0) & (m.blocked() == 0)
+    unknown = (known == 0).astype(np.uint8)
     near_unknown = cv2.dilate(unknown, np.ones((3, 3), np.uint8)) > 0
     front = (free & near_unknown).astype(np.uint8)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(front, connectivity=8)

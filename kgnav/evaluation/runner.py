@@ -22,7 +22,7 @@ import multiprocessing as mp
 import os
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +37,8 @@ from kgnav.agent.policy import cooccurrence, make_policy
 from kgnav.agent.segmenter import make_segmenter
 from kgnav.atomic import atomic_open
 from kgnav.errors import KgnavError
+from kgnav.evidence import forget
+from kgnav.evaluation import fidelity
 from kgnav.evaluation.failures import FAILURE_CLASSES, classify
 from kgnav.evaluation.sources import SceneSource, scene_source
 from kgnav.evaluation.stats import paired_differences
@@ -74,6 +76,8 @@ class EvalConfig:
     max_steps: int = 500  # per episode (the task's 500; lower only for quick checks)
     actuation_noise: float = 0.0
     odometry_noise: float = 0.0
+    forget_below: float = 0.2  # stored objects whose belief falls below this are forgotten
+    preset: str = "default"  # the name of the agent settings (recorded in config.json)
     show: tuple[int, int] | None = None  # (scene, episode) to draw from above per variant
     agent: AgentConfig = field(default_factory=AgentConfig)
 
@@ -162,7 +166,7 @@ def _make_agent(cfg: EvalConfig, variant: Variant, env: ObjectNavEnv, memory: Me
     policy = make_policy(variant.policy)
     if variant.policy == "semantic":
         policy.cooccurrence_ = _ROUND.get("cooccurrence", {})
-    config = AgentConfig(**{**asdict(cfg.agent), "strategy": variant.strategy})
+    config = replace(cfg.agent, strategy=variant.strategy)
     return ObjectNavAgent(Camera.from_env(env), make_segmenter(cfg.segmenter, cfg.seed),
                           _extractor(extractor_name), policy=policy, memory=memory,
                           config=config)
@@ -171,10 +175,30 @@ def _make_agent(cfg: EvalConfig, variant: Variant, env: ObjectNavEnv, memory: Me
 # ---------------------------------------------------------------------- one episode
 @dataclass
 class Outcome:
+    """An episode's record, and what it gives the memory: its model, the stored model it
+    relocated into (with the episode -> model transform), verified bridges to other stored
+    models (id -> episode -> model transform), and the real instances it saw (ids)."""
+
     record: dict
     model: AbstractModel | None = None
     transform: tuple[float, float, float] | None = None
     matched: str | None = None
+    bridges: dict = field(default_factory=dict)
+    seen: set = field(default_factory=set)
+
+
+#: An instance counts as seen by an episode when this many of its pixels lie within SEEN_RANGE.
+SEEN_PIXELS, SEEN_RANGE = 50, 3.5
+
+
+def seen_instances(obs) -> set[int]:
+    """Ground-truth instances visible in a frame, large and near enough to be segmented."""
+    sem = obs.get("semantic")
+    if sem is None:
+        return set()
+    ids = sem[..., 1][obs["depth"] <= SEEN_RANGE]
+    counts = np.bincount(ids.ravel())
+    return {int(i) for i in np.flatnonzero(counts >= SEEN_PIXELS) if i > 0}
 
 
 def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, round_: int,
@@ -188,10 +212,13 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     name = env.scene.name
     agent.reset(env.goal_class, seed=seed, scene=name, episode=scene * 1000 + episode,
                 model_id=f"{name}-e{episode:03d}")
+    seen = seen_instances(obs) if variant.learns else set()
     done = False
     while not done:
         obs, _r, term, trunc, info = env.step(agent.act(obs))
         done = term or trunc
+        if variant.learns:
+            seen |= seen_instances(obs)
 
     if topdown is not None:
         _draw(env, agent, topdown)
@@ -231,12 +258,21 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     if reloc is not None:
         record["relocation"] = {"distance": round(float(reloc.distance), 4),
                                 **_relocation_fields(env, reloc)}
+    rel = getattr(agent, "relocalizer", None)
+    if rel is not None:  # why hypotheses were accepted or refused, and bridges found
+        record["relocation_decisions"] = dict(sorted(rel.decisions.items()))
     if variant.learns:
         into = agent.mergeable()
+        bridges = {}
         if reloc is not None:
             record["relocation"]["merged"] = into is not None
+        if into is not None and rel.bridges:
+            bridges = {mid: v.transform for mid, v in rel.bridges.items()}
+            record["bridges"] = [
+                {"model": mid, **_relocation_error(env, mid, T, into.at)}
+                for mid, T in sorted(bridges.items())]
         return Outcome(record, agent.model_, into.transform if into else None,
-                       into.model_id if into else None)
+                       into.model_id if into else None, bridges, seen)
     return Outcome(record)
 
 
@@ -251,37 +287,52 @@ def _draw(env: ObjectNavEnv, agent, path: str) -> None:
 
 def _relocation_fields(env: ObjectNavEnv, reloc) -> dict:
     """What ``episodes.jsonl`` says of a relocation, kept or undone: when and into which
-    model, whether that model is of this house, its landmark support and its error."""
-    return {"step": reloc.step, "model": reloc.model_id,
-            "same_house": reloc.model_id.startswith(f"{env.scene.name}-"),
-            "checked": reloc.checked, "supported": reloc.supported,
-            **_relocation_error(env, reloc, reloc.at)}
+    model, whether that model is of this house, its geometric verification (share of inlier
+    points, conflicts, points judged), its landmark support and its error."""
+    out = {"step": reloc.step, "model": reloc.model_id,
+           "same_house": _house_of(reloc.model_id) == env.scene.name,
+           "checked": reloc.checked, "supported": reloc.supported}
+    if reloc.inliers is not None:
+        out.update(inliers=reloc.inliers, conflicts=reloc.conflicts, points=reloc.points)
+    return {**out, **_relocation_error(env, reloc.model_id, reloc.transform, reloc.at)}
 
 
-def _relocation_error(env: ObjectNavEnv, reloc, at) -> dict:
-    """How far off the relocation's frame transform is, from ground truth: the error (m) of
-    the agent's own position at the match mapped into the model frame, and the heading error
-    (degrees). Models are named ``<house>-e<episode>`` (or ``<house>-pre``) and live in that
-    episode's start frame, which is how the truth is known. Empty for another house's model."""
-    house, _, tag = reloc.model_id.rpartition("-")
-    if house != env.scene.name or at is None:
+def _house_of(model_id: str) -> str:
+    return model_id.rpartition("-")[0]
+
+
+def _model_frame(env: ObjectNavEnv, model_id: str):
+    """World pose of a model's frame: models are named ``<house>-e<episode>`` (or
+    ``<house>-pre``) and live in that episode's start frame. None for another house's."""
+    house, _, tag = model_id.rpartition("-")
+    if house != env.scene.name:
+        return None
+    return env.episodes[0 if tag == "pre" else int(tag[1:])].start
+
+
+def _relocation_error(env: ObjectNavEnv, model_id: str, transform, at) -> dict:
+    """How far off a frame transform (episode -> model) is, from ground truth: the error (m)
+    of the agent's own position ``at`` mapped into the model frame, and the heading error
+    (degrees). Empty for another house's model."""
+    frame = _model_frame(env, model_id)
+    if frame is None or at is None:
         return {}
-    ep = 0 if tag == "pre" else int(tag[1:])
-    truth = se2.compose(se2.inverse(env.episodes[ep].start), env.episode.start)
-    ex, ey = se2.apply_to_point(reloc.transform, *at)
+    truth = se2.compose(se2.inverse(frame), env.episode.start)
+    ex, ey = se2.apply_to_point(transform, *at)
     tx, ty = se2.apply_to_point(truth, *at)
     return {"error_m": round(math.hypot(ex - tx, ey - ty), 3),
-            "error_deg": round(math.degrees(se2.angle_diff(reloc.transform[2], truth[2])), 2)}
+            "error_deg": round(math.degrees(se2.angle_diff(transform[2], truth[2])), 2)}
 
 
 def _run_task(task) -> Outcome:
     return run_episode(*task)
 
 
-def pre_explore(cfg: EvalConfig, scene: int, extractor_name: str) -> AbstractModel:
+def pre_explore(cfg: EvalConfig, scene: int, extractor_name: str
+                ) -> tuple[AbstractModel, set[int]]:
     """One long frontier exploration of a house from its first episode's start: the
     pre-explored model of ``hp``/``sp`` (the paper explores 10000 steps; here until nothing is
-    left to explore or ``cfg.pre_explore_steps``)."""
+    left to explore or ``cfg.pre_explore_steps``), and the real instances it saw."""
     env = _env(cfg, scene)
     agent = _make_agent(cfg, VARIANTS["ans"], env, None, extractor_name)
     saved = env.max_steps
@@ -291,6 +342,7 @@ def pre_explore(cfg: EvalConfig, scene: int, extractor_name: str) -> AbstractMod
         obs, _info = env.reset(seed=seed, options={"episode": 0})
         agent.reset(None, seed=seed, scene=env.scene.name, episode=scene * 1000 + 999,
                     model_id=f"{env.scene.name}-pre")
+        seen = seen_instances(obs)
         idle = 0
         for _ in range(cfg.pre_explore_steps):
             action = agent.act(obs)
@@ -298,14 +350,15 @@ def pre_explore(cfg: EvalConfig, scene: int, extractor_name: str) -> AbstractMod
             if idle >= 12 or action == 0:  # a full turn with nothing left to explore
                 break
             obs, _r, _term, trunc, _info = env.step(action)
+            seen |= seen_instances(obs)
             if trunc:
                 break
     finally:
         env.max_steps = saved
-    return agent.model_
+    return agent.model_, seen
 
 
-def _pre_task(task) -> AbstractModel:
+def _pre_task(task) -> tuple[AbstractModel, set[int]]:
     return pre_explore(*task)
 
 
@@ -359,15 +412,17 @@ def _episode_count(cfg: EvalConfig) -> list[int]:
 
 def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Path | None,
                 progress: bool = True, on_round: Callable[[list[dict]], None] | None = None
-                ) -> list[dict]:
-    """All episodes of one variant, in the documented order; returns their records."""
+                ) -> tuple[list[dict], dict | None]:
+    """All episodes of one variant, in the documented order; returns their records and, for
+    a variant with memory, the fidelity of its memory at the end (:func:`memory_fidelity`)."""
     scenes = cfg.scene_indices
     counts = dict(zip(scenes, _episode_count(cfg), strict=True))
     rounds = max(counts.values())
     store_dir = out / "memory" / variant.name if (out is not None and variant.learns) else None
     models: dict[str, AbstractModel] = {}
+    seen: dict[str, set[int]] = {}  # per house, the real instances its episodes saw
     if variant.memory == "pre":
-        models = _pre_explored(cfg, extractor_name, out, progress)
+        models, seen = _pre_explored(cfg, extractor_name, out, progress)
     if store_dir is not None:
         _clear_store(store_dir)
     store = ModelStore(store_dir) if store_dir is not None else None
@@ -388,17 +443,33 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
             round_records = [o.record for o in outcomes]
             if variant.learns:
                 for o in outcomes:  # merges in scene order: the same with any worker count
-                    changed = _absorb(models, o)
+                    changed, gone = absorb(models, o, cfg.forget_below)
+                    seen.setdefault(o.record["scene"], set()).update(o.seen)
                     if store is not None:
                         store.save(models[changed])
+                        for mid in gone:
+                            store.delete(mid)
             records.extend(round_records)
             if on_round is not None:
                 on_round(round_records)
     finally:
         bar.close()
         _ROUND.clear()
-    return records
+    return records, (memory_fidelity(cfg, models, seen) if variant.memory else None)
 
+
+def memory_fidelity(cfg: EvalConfig, models: dict[str, AbstractModel],
+                    seen: dict[str, set[int]]) -> dict:
+    """The memory scored against ground truth (:mod:`kgnav.evaluation.fidelity`), per house
+    and pooled."""
+    per_house = {}
+    for k in cfg.scene_indices:
+        env = _env(cfg, k)
+        name = env.scene.name
+        mine = [(m, _model_frame(env, mid)) for mid, m in sorted(models.items())
+                if _house_of(mid) == name]
+        per_house[name] = fidelity.score_memory(mine, env.scene.objects, seen.get(name))
+    return {"pooled": fidelity.pooled(per_house), "houses": per_house}
 
 def _topdown_path(cfg: EvalConfig, out: Path | None, variant: Variant, scene: int,
                   episode: int) -> str | None:
@@ -407,13 +478,32 @@ def _topdown_path(cfg: EvalConfig, out: Path | None, variant: Variant, scene: in
     return str(out / "topdown" / f"{variant.name}_{scene:02d}_e{episode:03d}.png")
 
 
-def _absorb(models: dict[str, AbstractModel], o: Outcome) -> str:
-    """Fold an episode's model into the memory; returns the id of the model that changed."""
-    if o.matched is not None and o.matched in models:
-        models[o.matched] = merge(models[o.matched], o.model, transform=o.transform)
-        return o.matched
-    models[o.model.model_id] = o.model
-    return o.model.model_id
+def absorb(models: dict[str, AbstractModel], o: Outcome, forget_below: float = 0.0
+           ) -> tuple[str, list[str]]:
+    """Fold an episode's model into the memory (in place): merged into the model it relocated
+    into, or stored as a new model; a stored model the episode also verifiably matched (a
+    bridge) is merged into that one too, so separate models of one house join. Objects whose
+    belief fell below ``forget_below`` are then forgotten (:func:`kgnav.evidence.forget`).
+    Returns the id of the model that changed and the ids of the models folded away."""
+    if o.matched is None or o.matched not in models:
+        models[o.model.model_id] = o.model
+        if forget_below > 0:
+            forget(o.model, forget_below)
+        return o.model.model_id, []
+    into = o.matched
+    merged = merge(models[into], o.model, transform=o.transform)
+    gone = []
+    for mid, T in sorted(o.bridges.items()):
+        if mid == into or mid not in models:
+            continue
+        # the bridged model's frame -> the episode's -> the target's
+        merged = merge(merged, models.pop(mid), transform=se2.compose(o.transform,
+                                                                      se2.inverse(T)))
+        gone.append(mid)
+    if forget_below > 0:
+        forget(merged, forget_below)
+    models[into] = merged
+    return into, gone
 
 
 def _clear_store(path: Path) -> None:
@@ -427,24 +517,34 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
                   ) -> dict[str, AbstractModel]:
     """The hp/sp memory: one pre-explored model per house, built once per output directory."""
     key = json.dumps({"split": cfg.source_name, "scenes": cfg.scene_indices, "seed": cfg.seed,
+                      "forget": cfg.forget_below, "agent": asdict(cfg.agent),
                       "steps": cfg.pre_explore_steps, "extractor": extractor_name,
                       "segmenter": cfg.segmenter, "size": [cfg.width, cfg.height]},
                      sort_keys=True)
     if _CACHE.get("pre_key") == key:
-        return dict(_CACHE["pre_models"])
+        return dict(_CACHE["pre_models"]), dict(_CACHE["pre_seen"])
     store_dir = out / "memory" / "pre-explored" if out is not None else None
     models: dict[str, AbstractModel] = {}
+    seen: dict[str, set[int]] = {}
     if store_dir is not None and (store_dir / "params.json").is_file():
         if (store_dir / "params.json").read_text() == key:
             loaded, problems = ModelStore(store_dir).load_all()
-            if not problems and len(loaded) == len(cfg.scene_indices):
+            try:
+                seen = {h: set(v) for h, v in
+                        json.loads((store_dir / "seen.json").read_text()).items()}
+            except (OSError, ValueError, AttributeError, TypeError):
+                seen = None
+            if not problems and len(loaded) == len(cfg.scene_indices) and seen is not None:
                 models = loaded
     if not models:
         bar = _bar(len(cfg.scene_indices), "pre-explore", progress)
         try:
             tasks = [(cfg, s, extractor_name) for s in cfg.scene_indices]
-            for m in _map(_pre_task, tasks, cfg.workers, bar):
+            for m, saw in _map(_pre_task, tasks, cfg.workers, bar):
+                if cfg.forget_below > 0:
+                    forget(m, cfg.forget_below)
                 models[m.model_id] = m
+                seen[_house_of(m.model_id)] = saw
         finally:
             bar.close()
         if store_dir is not None:
@@ -452,11 +552,14 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
             store = ModelStore(store_dir)
             for m in models.values():
                 store.save(m)
+            with atomic_open(store_dir / "seen.json", "w") as f:
+                json.dump({h: sorted(v) for h, v in sorted(seen.items())}, f)
             with atomic_open(store_dir / "params.json", "w") as f:
                 f.write(key)
     _CACHE["pre_key"] = key
     _CACHE["pre_models"] = models
-    return dict(models)
+    _CACHE["pre_seen"] = seen
+    return dict(models), dict(seen)
 
 
 # ---------------------------------------------------------------------- whole benchmark
@@ -482,11 +585,29 @@ def summarize(records: Iterable[dict], seed: int = 0) -> dict[str, dict]:
             "relocation_same_house": (sum(r["relocation"]["same_house"] for r in reloc)
                                       / len(reloc)) if reloc else None,
             "relocation_error_m": _median([r["relocation"].get("error_m") for r in reloc]),
+            "relocation_step": _median([r["relocation"].get("step") for r in reloc]),
+            **_later_relocation(recs),
+            "wrong_merges": sum(1 for r in reloc if r["relocation"].get("merged") and (
+                not r["relocation"]["same_house"] or r["relocation"].get("error_m", 0) > 1.0
+                or abs(r["relocation"].get("error_deg", 0)) > 30)),
             "failures": {c: sum(r["failure"] == c for r in recs) for c in FAILURE_CLASSES},
         }
     for name, diff in paired_differences(records, "ans", seed=seed).items():
         out[name]["vs_ans"] = diff
     return out
+
+
+def _later_relocation(recs: list[dict]) -> dict:
+    """Relocation rate over each house's episodes after its first: the lowest house's, and
+    the mean over houses."""
+    by: dict[str, list[bool]] = {}
+    for r in sorted(recs, key=lambda r: (r.get("scene", ""), r.get("episode", 0))):
+        by.setdefault(r.get("scene", ""), []).append(r["relocated"])
+    rates = [sum(v[1:]) / len(v[1:]) for v in by.values() if len(v) > 1]
+    if not rates:
+        return {}
+    return {"relocated_after_first_min": round(min(rates), 3),
+            "relocated_after_first_mean": round(float(np.mean(rates)), 3)}
 
 
 def _median(values) -> float | None:
@@ -519,10 +640,13 @@ def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = Tr
     try:
         for name in cfg.variants:
             t0 = time.perf_counter()
-            recs = run_variant(cfg, VARIANTS[name], extractor_name, out_dir, progress, write)
+            recs, memory = run_variant(cfg, VARIANTS[name], extractor_name, out_dir, progress,
+                                       write)
             dt = time.perf_counter() - t0
             timing[name] = {"seconds": round(dt, 2),
                             "episodes_per_second": round(len(recs) / dt, 4) if dt > 0 else None}
+            if memory is not None:
+                timing[name]["memory"] = memory
             records.extend(recs)
     finally:
         if part is not None:

@@ -87,7 +87,7 @@ class SceneDir:
 
 def generate_split(path: str | os.PathLike[str], count: int, seed: int,
                    rooms: tuple[int, int] = (MIN_ROOMS, MAX_ROOMS), max_side: float = 40.0,
-                   episodes: int = 60, generator: str = GENERATOR_V2,
+                   episodes: int = 100, generator: str = GENERATOR_V2,
                    progress=None) -> list[str]:
     """Write ``count`` houses (seeds ``seed``, ``seed + 1``, ...) with ``episodes`` episodes
     each into directory ``path`` (created); returns their names. ``rooms`` bounds the room

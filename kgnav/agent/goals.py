@@ -1,0 +1,58 @@
+"""Which remembered object to head for: the paper's view count, or the belief of the evidence.
+
+* ``"views"`` (the paper): the closest to the agent among the ``top_k`` most-seen objects of the
+  goal class (:func:`kgnav.query.goal_point`).
+* ``"belief"`` (the default): the closest among the objects of the goal class whose belief
+  (:func:`kgnav.evidence.belief`: views against misses of the states that had them in view)
+  is at least ``min_belief``. A place the memory looked at many times without seeing the goal
+  there is no longer a goal because a segmenter glitched twice.
+
+Either rule skips objects seen from fewer than ``min_views`` states and the ids excluded by
+the caller (objects already looked for and not found).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from kgnav import query
+from kgnav.evidence import DEFAULT_BELIEF, BeliefModel, ScanTable, belief, object_evidence
+from kgnav.model import AbstractModel, ObjectInfo
+
+GOAL_RULES = ("belief", "views")
+
+
+@dataclass(frozen=True)
+class GoalConfig:
+    rule: str = "belief"
+    top_k: int = query.TOP_K  # the views rule's "most seen"
+    min_views: int = 2  # a goal seen from one state only is likely a segmenter glitch
+    min_belief: float = 0.5
+    belief: BeliefModel = field(default_factory=lambda: DEFAULT_BELIEF)
+
+    def __post_init__(self):
+        if self.rule not in GOAL_RULES:
+            raise ValueError(f"goal rule must be one of {GOAL_RULES}, got {self.rule!r}")
+
+
+def choose_goal(model: AbstractModel, cls: str, near, config: GoalConfig,
+                exclude=(), table: ScanTable | None = None, among=None) -> ObjectInfo | None:
+    """The object of class ``cls`` to head for from ``near`` (model frame), or None;
+    ``among``: consider only these object ids."""
+    if among is not None:
+        exclude = set(exclude) | {o for o in model._index.by_class.get(cls, ())
+                                  if o not in among}
+    if config.rule == "views":
+        return query.goal_point(model, cls, near, config.top_k, exclude=exclude,
+                                min_views=config.min_views)
+    cands = [o for o in query.ranked_objects(model, cls)
+             if o.id not in exclude and o.n_views >= config.min_views]
+    if not cands:
+        return None
+    ev = object_evidence(model, [o.id for o in cands], table=table)
+    trusted = [o for o in cands if belief(ev[o.id], config.belief) >= config.min_belief]
+    if not trusted:
+        return None
+    x, y = float(near[0]), float(near[1])
+    return min(trusted, key=lambda o: (math.hypot(o.position[0] - x, o.position[1] - y), o.id))

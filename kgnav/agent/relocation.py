@@ -1,0 +1,476 @@
+"""Relocation: recognising a stored model while exploring, as hypotheses that must be verified.
+
+The paper relocates on the first stored state whose features lie within the threshold and
+merges into its model. A feature match alone is a hypothesis: look-alike rooms in another house,
+or the same room turned round (a "rotated twin"), match too, and a wrong merge damages every
+later episode in that house. :class:`Relocalizer` therefore
+
+1. **proposes** hypotheses each step from the ``top_k`` stored states nearest in feature space
+   (within the threshold), each giving a frame transform ``T`` (episode → model);
+2. **verifies** each against geometry (:meth:`Relocalizer.verify`): the obstacle end points of
+   the episode's recent range profiles, mapped by ``T``, must land on obstacles the stored model
+   saw (inliers) and not inside space it saw free (conflicts), and the stored obstacles must not
+   lie inside the free space the agent sees now; a few rounds of ICP on the way refine ``T``;
+3. **accepts** the best verified hypothesis (or, with geometry off, the paper's first match,
+   optionally confirmed by ``confirm_matches`` agreeing matches);
+4. after acceptance, **checks landmarks** every step (a detection mapped where the stored model
+   knows objects should find one of its class), **refines** ``T`` from landmark pairs, and
+   **undoes** a relocation the landmarks refute; and keeps looking for **bridges**: verified
+   matches into *other* stored models, so that separate models of one house can be joined.
+
+Every decision is counted (``decisions``), so ``episodes.jsonl`` can say why a relocation was
+accepted, refused or undone.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter, deque
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from kgnav import se2
+from kgnav.geometry import OccupancyGrid, occupancy_from_scans
+
+
+@dataclass(frozen=True)
+class RelocationConfig:
+    """Tunable relocation behaviour. Distances in metres."""
+
+    top_k: int = 3  # feature-space candidates considered per step
+    geometry: bool = True  # verify hypotheses against range profiles (False: feature match only)
+    confirm_matches: int = 2  # agreeing verified matches needed to accept (the paper: 1)
+    confirm_window: int = 10  # steps within which they must fall
+    confirm_tolerance: tuple[float, float] = (0.5, 15.0)  # m, degrees between transforms
+    recent_scans: int = 40  # the episode's latest range profiles used to verify
+    min_points: int = 80  # obstacle points the stored model must know to judge a hypothesis
+    min_spread: float = 0.4  # m: the points must not all lie along one wall (least std dev)
+    min_inliers: float = 0.75  # share of known points landing on a stored obstacle
+    max_conflicts: float = 0.08  # share landing deep inside stored free space (or vice versa)
+    inlier_distance: float = 0.2
+    icp_rounds: int = 20  # alignment iterations at most; it stops when T no longer moves
+    rejudge_after: int = 3  # steps before a refused hypothesis is judged again
+    max_correction: tuple[float, float] = (1.0, 20.0)  # ICP may move T this much (m, degrees)
+    landmark_radius: float = 1.5  # landmark pairing radius for checks and refinement (0: off)
+    refine_pairs: int = 60  # most recent landmark pairs used to refine
+    verify_checks: int = 15  # landmark checks before a relocation may be undone (0: never)
+    verify_support: float = 0.25  # undo it when fewer checks than this share find their class
+    merge_support: float = 0.5  # at the episode's end, merge into the matched model only above
+    bridge_interval: int = 5  # after relocating, look for other models every this many steps
+    reverify_interval: int = 10  # after relocating, re-verify (and refine) this often (0: off)
+
+
+@dataclass
+class Relocation:
+    """A match accepted in this episode (at most one stands at a time, as in the paper)."""
+
+    step: int
+    model_id: str
+    state_id: str
+    distance: float
+    transform: tuple[float, float, float]  # episode frame -> model frame
+    at: tuple[float, float] | None = None  # agent position at the match, episode frame
+    checked: int = 0  # detections mapped where the stored model knows some object
+    supported: int = 0  # ... of which found a remembered object of their own class
+    inliers: float | None = None  # geometric verification: share of points on stored obstacles
+    conflicts: float | None = None
+    points: int = 0  # points the verification judged
+
+
+@dataclass
+class Verdict:
+    """The outcome of verifying one hypothesis."""
+
+    ok: bool
+    reason: str  # "verified", "few points", "geometry", "conflict"
+    transform: tuple[float, float, float]
+    inliers: float = 0.0
+    conflicts: float = 0.0
+    points: int = 0
+
+
+class StoredGeometry:
+    """A stored model's occupancy (:func:`~kgnav.geometry.occupancy`) prepared for verifying
+    hypotheses: the distance from every cell to the nearest stored obstacle, and its gradient
+    (for aligning scans to it)."""
+
+    def __init__(self, grid: OccupancyGrid):
+        self.grid = grid
+        obst = self.obstacle = grid.obstacle
+        self.known = (grid.free > 0) | obst
+        if obst.any():
+            dist = cv2.distanceTransform((~obst).astype(np.uint8), cv2.DIST_L2,
+                                         cv2.DIST_MASK_PRECISE)
+            self.dist = dist * grid.resolution
+            # d(distance)/dx and /dy in metres per metre (columns are x, rows y)
+            self.grad_y, self.grad_x = np.gradient(dist.astype(np.float32))
+        else:
+            self.dist = np.full(obst.shape, np.inf, np.float32)
+            self.grad_x = self.grad_y = None
+
+    def sample(self, pts: np.ndarray):
+        """Bilinear distance (m) and its gradient at points; ``inf`` outside the grid."""
+        g = self.grid
+        fx = (pts[:, 0] - g.x0) / g.resolution - 0.5
+        fy = (pts[:, 1] - g.y0) / g.resolution - 0.5
+        h, w = self.dist.shape
+        ok = (fx >= 0) & (fx < w - 1) & (fy >= 0) & (fy < h - 1)
+        d = np.full(len(pts), np.inf)
+        gx = np.zeros(len(pts))
+        gy = np.zeros(len(pts))
+        if ok.any() and self.grad_x is not None:
+            x, y = fx[ok], fy[ok]
+            j, i = x.astype(int), y.astype(int)
+            a, b = x - j, y - i
+            w00, w01, w10, w11 = (1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b
+
+            def bil(f):
+                return (w00 * f[i, j] + w01 * f[i, j + 1] + w10 * f[i + 1, j]
+                        + w11 * f[i + 1, j + 1])
+
+            d[ok] = bil(self.dist)
+            gx[ok], gy[ok] = bil(self.grad_x), bil(self.grad_y)
+        return d, gx, gy
+
+    def cells(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        g = self.grid
+        j = np.floor((pts[:, 0] - g.x0) / g.resolution).astype(np.int64)
+        i = np.floor((pts[:, 1] - g.y0) / g.resolution).astype(np.int64)
+        h, w = self.known.shape
+        inside = (i >= 0) & (i < h) & (j >= 0) & (j < w)
+        return i, j, inside
+
+    @classmethod
+    def of(cls, model) -> StoredGeometry | None:
+        scan = model.scan
+        if scan is None:
+            return None
+        poses, ranges = [], []
+        for s in model.states():
+            d = model.graph.nodes[s]
+            if "ranges" in d:
+                poses.append((d["x"], d["y"], d["theta"]))
+                ranges.append(d["ranges"])
+        if not poses:
+            return None
+        return cls(occupancy_from_scans(scan, poses, ranges))
+
+
+class Relocalizer:
+    """Proposes, verifies, accepts, checks, refines and undoes relocations into a
+    :class:`~kgnav.agent.memory.Memory` (see the module docstring)."""
+
+    def __init__(self, memory, config: RelocationConfig | None = None):
+        self.memory = memory
+        self.config = config or RelocationConfig()
+        self.reset()
+
+    def reset(self) -> None:
+        self.relocation: Relocation | None = None
+        self.undone: list[Relocation] = []
+        self.bridges: dict[str, Verdict] = {}  # other models verified during the episode
+        self.decisions: Counter = Counter()
+        self._recent: deque = deque(maxlen=self.config.recent_scans)
+        self._candidates: list[tuple[int, str, tuple]] = []
+        self._failed: list[tuple[int, str, tuple]] = []  # recently refused hypotheses
+        self._pairs: list[tuple] = []
+        self._landmarks = (np.zeros((0, 2)), np.zeros(0, dtype=object))
+        self._last_bridge = 0
+
+    # ------------------------------------------------------------------ proposing
+    def observe(self, step: int, state, scan) -> Relocation | None:
+        """Note the state's range profile; while not relocated, try to relocate on it.
+        Returns the relocation accepted at this step, if any."""
+        if state.ranges is not None and scan is not None:
+            self._recent.append((state.pose, np.asarray(state.ranges, np.float32), scan))
+        if self.relocation is not None:
+            if (self.config.bridge_interval > 0
+                    and step - self._last_bridge >= self.config.bridge_interval):
+                self._last_bridge = step
+                self._bridge(state)
+            return None
+        best = None
+        for m in self._matches(state.features):
+            stored = self.memory.model(m.model_id)
+            T = se2.anchor_transform(stored.pose(m.state_id), state.pose)
+            if any(u.model_id == m.model_id and self._agree(u.transform, T) for u in self.undone):
+                self.decisions["refuted before"] += 1
+                continue
+            if self.config.geometry:
+                if self._judged_lately(step, m.model_id, T):
+                    continue
+                v = self.verify(m.model_id, T)
+                self.decisions[v.reason] += 1
+                if not v.ok:
+                    self._failed.append((step, m.model_id, tuple(T)))
+                    continue
+            else:
+                v = Verdict(True, "feature match", tuple(T))
+            if not self._confirmed(step, m.model_id, v.transform):
+                self.decisions["awaiting confirmation"] += 1
+                continue
+            if best is None or v.inliers > best[1].inliers:
+                best = (m, v)
+            if not self.config.geometry:
+                break  # the paper: the first match
+        if best is None:
+            return None
+        m, v = best
+        self.relocation = Relocation(step, m.model_id, m.state_id, m.distance,
+                                     tuple(float(x) for x in v.transform),
+                                     (float(state.pose[0]), float(state.pose[1])),
+                                     inliers=round(v.inliers, 3) if self.config.geometry else None,
+                                     conflicts=round(v.conflicts, 3) if self.config.geometry
+                                     else None, points=v.points)
+        self._last_bridge = step
+        stored = self.memory.model(m.model_id)
+        nodes = stored.graph.nodes
+        objs = list(stored.objects())
+        self._landmarks = (np.array([(nodes[o]["x"], nodes[o]["y"]) for o in objs],
+                                    float).reshape(-1, 2),
+                           np.array([nodes[o]["cls"] for o in objs], dtype=object))
+        return self.relocation
+
+    def _judged_lately(self, step: int, model_id: str, T) -> bool:
+        """A hypothesis agreeing with one that failed verification in the last few steps is
+        not judged again yet (the scans have hardly changed)."""
+        self._failed = [f for f in self._failed if step - f[0] < self.config.rejudge_after]
+        return any(f[1] == model_id and self._agree(f[2], T) for f in self._failed)
+
+    def _matches(self, features, k: int | None = None):
+        """The nearest stored states within the threshold, at most one per model."""
+        threshold = self.memory.threshold
+        out, models = [], set()
+        for m in self.memory.nearest(features, k or self.config.top_k):
+            if m.distance < threshold and m.model_id not in models:
+                out.append(m)
+                models.add(m.model_id)
+        return out
+
+    def _confirmed(self, step: int, model_id: str, T) -> bool:
+        need = self.config.confirm_matches
+        if need <= 1:
+            return True
+        window = self.config.confirm_window
+        self._candidates = [c for c in self._candidates if step - c[0] < window]
+        agree = [c for c in self._candidates if c[1] == model_id and self._agree(c[2], T)]
+        self._candidates.append((step, model_id, tuple(T)))
+        return len(agree) + 1 >= need
+
+    def _agree(self, a, b) -> bool:
+        tol_xy, tol_th = self.config.confirm_tolerance
+        return (math.dist(a[:2], b[:2]) <= tol_xy
+                and se2.angle_diff(a[2], b[2]) <= math.radians(tol_th))
+
+    # ------------------------------------------------------------------ verifying
+    def verify(self, model_id: str, T) -> Verdict:
+        """Judge the hypothesis "the episode frame maps into ``model_id``'s by ``T``" against
+        geometry (see the module docstring); ICP refines ``T`` on the way."""
+        c = self.config
+        geo = self.memory.geometry(model_id)
+        if geo is None or not self._recent:
+            return Verdict(False, "few points", tuple(T))
+        ends, fans = self._episode_geometry()
+        if len(ends) == 0:
+            return Verdict(False, "few points", tuple(T))
+        T0 = T = tuple(float(v) for v in T)
+        if geo.grad_x is not None:
+            T = self._align(geo, ends, T0)
+        v0 = self._judge(geo, ends, fans, T0)
+        if (T == T0 or math.dist(T[:2], T0[:2]) > c.max_correction[0]
+                or se2.angle_diff(T[2], T0[2]) > math.radians(c.max_correction[1])):
+            return v0  # no refinement, or ICP wandered off: judge the hypothesis as proposed
+        v1 = self._judge(geo, ends, fans, T)
+        return max((v0, v1), key=lambda v: (v.ok, v.inliers - v.conflicts))
+
+    def _align(self, geo: StoredGeometry, ends: np.ndarray, T):
+        """Scan-to-map alignment: Gauss-Newton on the distance from the mapped obstacle points
+        to the stored obstacles (bilinear distance field, as Hector SLAM), points with a
+        stored partner within a shrinking radius only; at most ``icp_rounds`` iterations."""
+        c = self.config
+        tx, ty, th = T
+        for k in range(c.icp_rounds):
+            pts = se2.apply_to_points((tx, ty, th), ends)
+            d, gx, gy = geo.sample(pts)
+            i, j, inside = geo.cells(pts)
+            known = np.zeros(len(pts), bool)
+            known[inside] = geo.known[i[inside], j[inside]]
+            use = known & (d <= max(0.8 * (1 - k / max(c.icp_rounds - 1, 1)), 0.3))
+            if use.sum() < c.min_points // 2:
+                break
+            px, py = pts[use, 0] - tx, pts[use, 1] - ty
+            J = np.stack([gx[use], gy[use], -gx[use] * py + gy[use] * px], axis=1)
+            r = d[use]
+            H = J.T @ J + np.diag([1e-3, 1e-3, 1e-2])  # damped: a wall alone fixes 2 of 3 dof
+            delta = np.linalg.solve(H, -J.T @ r)
+            tx, ty, th = tx + delta[0], ty + delta[1], th + delta[2]
+            if abs(delta[0]) + abs(delta[1]) < 1e-3 and abs(delta[2]) < 1e-4:
+                break
+        return float(tx), float(ty), float(se2.wrap_angle(th))
+
+    def _episode_geometry(self):
+        ends, fans = [], []
+        for pose, r, scan in self._recent:
+            ends.append(scan.endpoints(pose, r))
+            fans.append(scan.fan(pose, r, margin=0.35))
+        return np.concatenate(ends) if ends else np.zeros((0, 2)), fans
+
+    def _judge(self, geo: StoredGeometry, ends, fans, T) -> Verdict:
+        c = self.config
+        pts = se2.apply_to_points(T, ends)
+        i, j, inside = geo.cells(pts)
+        known = np.zeros(len(pts), bool)
+        known[inside] = geo.known[i[inside], j[inside]]
+        n = int(known.sum())
+        if n < c.min_points or _spread(pts[known]) < c.min_spread:
+            return Verdict(False, "few points", tuple(T), points=n)
+        d = geo.dist[i[known], j[known]]
+        inliers = float((d <= c.inlier_distance).mean())
+        # an obstacle seen now where the memory saw open floor, far from any stored obstacle
+        deep_free = (geo.grid.free[i[known], j[known]] > 0) & (d > 0.5)
+        conflicts = float(deep_free.mean())
+        # stored obstacles inside the free space the agent sees now
+        conflicts = max(conflicts, self._through_walls(geo, fans, T))
+        ok = inliers >= c.min_inliers and conflicts <= c.max_conflicts
+        reason = "verified" if ok else ("conflict" if conflicts > c.max_conflicts else "geometry")
+        return Verdict(ok, reason, tuple(T), inliers, conflicts, n)
+
+    @staticmethod
+    def _through_walls(geo: StoredGeometry, fans, T) -> float:
+        """Share of the currently seen free space (known to the stored model) where the
+        stored model has an obstacle."""
+        g = geo.grid
+        polys = [np.floor((se2.apply_to_points(T, poly) - (g.x0, g.y0)) / g.resolution)
+                 .astype(np.int32) for poly in fans]
+        allp = np.concatenate(polys)
+        h, w = g.free.shape
+        i0, j0 = max(int(allp[:, 1].min()), 0), max(int(allp[:, 0].min()), 0)
+        i1, j1 = min(int(allp[:, 1].max()) + 1, h), min(int(allp[:, 0].max()) + 1, w)
+        if i0 >= i1 or j0 >= j1:
+            return 0.0
+        mask = np.zeros((i1 - i0, j1 - j0), np.uint8)
+        cv2.fillPoly(mask, [p - (j0, i0) for p in polys], 1)
+        seen = mask.astype(bool) & geo.known[i0:i1, j0:j1]
+        n = int(seen.sum())
+        if n < 50:
+            return 0.0
+        return float((seen & geo.obstacle[i0:i1, j0:j1]).sum() / n)
+
+    # ------------------------------------------------------------------ after the match
+    def check(self, state, step: int = 0) -> bool:
+        """Check the standing relocation: every ``reverify_interval`` steps against geometry
+        (with the scans gathered since, which also refines the transform), and every step
+        against landmarks (this state's detections). Returns False (and undoes it) when
+        either refutes it."""
+        r = self.relocation
+        c = self.config
+        if r is None:
+            return False
+        if (c.geometry and c.reverify_interval > 0
+                and step - r.step >= c.reverify_interval
+                and (step - r.step) % c.reverify_interval == 0):
+            v = self.verify(r.model_id, r.transform)
+            if v.ok:
+                r.transform = v.transform
+            elif v.conflicts > 2 * c.max_conflicts or (v.reason != "few points"
+                                                      and v.inliers < c.min_inliers / 2):
+                return self._undo("undone by geometry")  # clearly wrong, not just imprecise
+        if c.landmark_radius <= 0:
+            return True
+        xy, cls = self._landmarks
+        if len(cls):
+            for det in state.detections:
+                x, y = se2.apply_to_point(r.transform, *det.position[:2])
+                near = np.hypot(xy[:, 0] - x, xy[:, 1] - y) <= c.landmark_radius
+                if near.any():
+                    r.checked += 1
+                    r.supported += bool((cls[near] == det.cls).any())
+        if not self.refuted(r, c.verify_support):
+            return True
+        return self._undo("undone by landmarks")
+
+    def _undo(self, why: str) -> bool:
+        self.decisions[why] += 1
+        self.undone.append(self.relocation)
+        self.relocation = None
+        self._pairs, self._candidates = [], []
+        return False
+
+    def refuted(self, r: Relocation, share: float) -> bool:
+        """Enough landmark checks (``verify_checks``), and fewer than ``share`` support ``r``."""
+        need = self.config.verify_checks
+        return need > 0 and r.checked >= need and r.supported < share * r.checked
+
+    def mergeable(self) -> Relocation | None:
+        """The relocation to merge the episode with at its end, or None: one that stood but
+        that landmarks supported only weakly would misplace a whole episode for good."""
+        r = self.relocation
+        if r is None or self.refuted(r, self.config.merge_support):
+            return None
+        return r
+
+    def refine(self, state) -> None:
+        """Without geometric verification, correct the transform with landmarks (with it,
+        re-verification aligns the scans, which is more precise): each object seen after the
+        match is paired
+        with the nearest remembered object of its class; every few pairs the rigid transform
+        that best maps them (least squares, one round of outlier rejection) replaces the
+        current one unless it moves implausibly far."""
+        r = self.relocation
+        c = self.config
+        if r is None or c.landmark_radius <= 0 or c.geometry:
+            return  # with geometry, re-verification refines: landmark positions are noisier
+        stored = self.memory.model(r.model_id)
+        for det in state.detections:
+            x, y = se2.apply_to_point(r.transform, *det.position[:2])
+            hit = stored.nearest_object(det.cls, x, y, c.landmark_radius)
+            if hit is not None:
+                o = stored.graph.nodes[hit]
+                self._pairs.append((det.position[0], det.position[1], o["x"], o["y"], hit))
+        self._pairs = self._pairs[-c.refine_pairs:]
+        if len({p[4] for p in self._pairs}) < 3 or len(self._pairs) % 5:
+            return
+        pts = np.array([p[:4] for p in self._pairs], float)
+        new = rigid_fit(pts[:, :2], pts[:, 2:])
+        res = np.hypot(*(se2.apply_to_points(new, pts[:, :2]) - pts[:, 2:]).T)
+        keep = res <= max(0.5, 2.0 * float(np.median(res)))
+        if keep.sum() >= 3:
+            new = rigid_fit(pts[keep, :2], pts[keep, 2:])
+        at = r.at
+        moved = math.dist(se2.apply_to_point(new, *at), se2.apply_to_point(r.transform, *at))
+        if moved <= 1.5 and se2.angle_diff(new[2], r.transform[2]) <= math.radians(30):
+            r.transform = tuple(float(v) for v in new)
+
+    def _bridge(self, state) -> None:
+        """A verified match into another stored model than the one relocated into."""
+        # the models not relocated into are few states among many: look further down the list
+        for m in self._matches(state.features, 8 * self.config.top_k):
+            if m.model_id == self.relocation.model_id or m.model_id in self.bridges:
+                continue
+            stored = self.memory.model(m.model_id)
+            T = se2.anchor_transform(stored.pose(m.state_id), state.pose)
+            v = self.verify(m.model_id, T)
+            if v.ok:
+                self.bridges[m.model_id] = v
+                self.decisions["bridge"] += 1
+
+
+def _spread(pts: np.ndarray) -> float:
+    """The smaller standard deviation of a point set (0 for points along one line)."""
+    if len(pts) < 3:
+        return 0.0
+    return float(np.sqrt(max(np.linalg.eigvalsh(np.cov(pts.T))[0], 0.0)))
+
+
+def rigid_fit(src: np.ndarray, dst: np.ndarray) -> tuple[float, float, float]:
+    """The SE(2) transform minimising squared distances from mapped ``src`` to ``dst``
+    (2-D Kabsch)."""
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    a, b = src - cs, dst - cd
+    theta = math.atan2(float((a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]).sum()),
+                       float((a * b).sum()))
+    c, s = math.cos(theta), math.sin(theta)
+    t = cd - np.array([c * cs[0] - s * cs[1], s * cs[0] + c * cs[1]])
+    return float(t[0]), float(t[1]), theta

@@ -1,0 +1,158 @@
+"""Evidence for and against the objects of an Abstract Model, and the belief it adds up to.
+
+Counting views (the paper's "top five most-seen") trusts a segmenter's persistent mistakes more
+the more often they recur, and never learns that a place was looked at many times without the
+goal being there. The evidence of an object is therefore:
+
+* **positive**: ``n_views`` (distinct states that saw it), ``n_episodes`` (distinct episodes
+  among them) and ``score`` (summed detection confidence of its views);
+* **negative**: ``n_missed``, the states that *should* have seen it and did not: the object's
+  position lay in their field of view, within :data:`MISS_RANGE`, and in front of the first
+  obstacle of their range profile (so not hidden behind a wall), yet they hold no view of it.
+
+All of it is a function of the graph (views, states and their range profiles), computed on
+demand by :func:`object_evidence`; it therefore survives saving and loading unchanged, and
+merging combines it exactly: the evidence of a merged model is that of its union of states and
+views. :func:`belief` turns it into the probability that the object is real, a naive-Bayes
+log-odds of detection against false alarm per state: a real object in view is detected with
+probability about ``p_detect``, a place without one yields a detection of that class with
+about ``p_false``.
+
+>>> import numpy as np
+>>> from kgnav import AbstractModel, Detection
+>>> from kgnav.geometry import ScanGeometry
+>>> m = AbstractModel(2, model_id="e", scan=ScanGeometry(90.0, 4, 5.0))
+>>> far = np.full(4, 5.0)
+>>> s0 = m.add_state([1.0, 0.0], (0, 0, 0), [Detection("chair", (2.0, 0.0, 0.4))], ranges=far)
+>>> s1 = m.add_state([0.0, 1.0], (0.5, 0, 0), ranges=far)     # looks at it, sees nothing
+>>> ev = object_evidence(m)["o0"]
+>>> ev.n_views, ev.n_missed, ev.n_episodes
+(1, 1, 1)
+>>> round(belief(ev), 3)
+0.201
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from kgnav.model import SEES, AbstractModel
+
+#: Farther than this (m), a state that did not see an object is no evidence against it: a
+#: segmenter misses much of what is far.
+MISS_RANGE = 3.0
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """What a model knows for and against one object."""
+
+    n_views: int
+    n_episodes: int
+    n_missed: int
+    score: float
+
+
+@dataclass(frozen=True)
+class BeliefModel:
+    """Parameters of :func:`belief`: detection probability of a real object in view, false
+    alarm probability of a place without one, and the prior log-odds of a first detection."""
+
+    p_detect: float = 0.6
+    p_false: float = 0.05
+    prior: float = -3.0
+
+    @property
+    def view_weight(self) -> float:
+        return math.log(self.p_detect / self.p_false)
+
+    @property
+    def miss_weight(self) -> float:
+        return math.log((1.0 - self.p_detect) / (1.0 - self.p_false))
+
+
+DEFAULT_BELIEF = BeliefModel()
+
+
+def belief(ev: Evidence, model: BeliefModel = DEFAULT_BELIEF) -> float:
+    """Probability that the object is real, from its views and misses."""
+    logit = model.prior + model.view_weight * ev.n_views + model.miss_weight * ev.n_missed
+    return 1.0 / (1.0 + math.exp(-min(max(logit, -50.0), 50.0)))
+
+
+class ScanTable:
+    """The poses and range profiles of a model's states, as arrays (build once, query often;
+    :meth:`add` appends the states a growing model gains)."""
+
+    def __init__(self, model: AbstractModel):
+        g = model.graph
+        self.scan = model.scan
+        bins = self.scan.bins if self.scan is not None else 0
+        self.ids: list[str] = []
+        self._poses = np.zeros((16, 3), float)
+        self._ranges = np.zeros((16, bins), np.float32)
+        for s in model.states():
+            d = g.nodes[s]
+            if d.get("ranges") is not None:
+                self.add(s, (d["x"], d["y"], d["theta"]), d["ranges"])
+
+    def add(self, sid: str, pose, ranges) -> None:
+        n = len(self.ids)
+        if n == len(self._poses):
+            self._poses = np.concatenate([self._poses, np.zeros_like(self._poses)])
+            self._ranges = np.concatenate([self._ranges, np.zeros_like(self._ranges)])
+        self._poses[n] = pose
+        self._ranges[n] = ranges
+        self.ids.append(sid)
+
+    @property
+    def poses(self) -> np.ndarray:
+        return self._poses[:len(self.ids)]
+
+    @property
+    def ranges(self) -> np.ndarray:
+        return self._ranges[:len(self.ids)]
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def covering(self, x: float, y: float, max_distance: float = MISS_RANGE) -> list[str]:
+        """Ids of the states that had (x, y) in view (see :meth:`ScanGeometry.covers`)."""
+        if not self.ids:
+            return []
+        hit = self.scan.covers(self.poses, self.ranges, (x, y), max_distance)
+        return [self.ids[i] for i in np.flatnonzero(hit)]
+
+
+def object_evidence(model: AbstractModel, objects: Iterable[str] | None = None,
+                    miss_range: float = MISS_RANGE, table: ScanTable | None = None
+                    ) -> dict[str, Evidence]:
+    """The :class:`Evidence` of ``objects`` (default: all), by id."""
+    g = model.graph
+    ids = list(model.objects()) if objects is None else [o for o in objects if o in g]
+    if table is None and ids and model.scan is not None:
+        table = ScanTable(model)
+    out = {}
+    for o in ids:
+        d = g.nodes[o]
+        seers = {s for s, _, k in g.in_edges(o, keys=True) if k == SEES}
+        episodes = {g.nodes[s]["episode"] for s in seers}
+        missed = 0
+        if table is not None:
+            missed = sum(1 for s in table.covering(d["x"], d["y"], miss_range) if s not in seers)
+        out[o] = Evidence(len(seers), len(episodes), missed, float(d["score"]))
+    return out
+
+
+def forget(model: AbstractModel, below: float = 0.2, belief_model: BeliefModel = DEFAULT_BELIEF
+           ) -> int:
+    """Consolidate a memory: remove the objects whose belief has fallen below ``below`` (seen
+    once or twice, then looked at and not seen again: a segmenter's passing mistake). Returns
+    how many were removed. An object the evidence has not yet judged (seen once, never looked
+    at again) stays."""
+    ev = object_evidence(model)
+    return model.remove_objects(o for o, e in ev.items() if belief(e, belief_model) < below)

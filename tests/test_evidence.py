@@ -1,0 +1,163 @@
+"""Range profiles, occupancy, object evidence and belief: their algebra under merging and
+transforms, and brute-force checks of the vectorised computations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from kgnav import AbstractModel, Detection, merge, query, se2
+from kgnav.evidence import (
+    BeliefModel,
+    Evidence,
+    ScanTable,
+    belief,
+    forget,
+    object_evidence,
+)
+from kgnav.geometry import ScanGeometry, occupancy_from_scans
+from kgnav.model import SEES
+from tests.strategies import SCAN, models
+
+PROPS = settings(max_examples=60, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+def brute_evidence(model: AbstractModel, oid: str, miss_range: float = 3.0) -> Evidence:
+    """Evidence of one object, state by state (no vectorisation, no table)."""
+    g = model.graph
+    d = g.nodes[oid]
+    seers = {s for s, _, k in g.in_edges(oid, keys=True) if k == SEES}
+    missed = 0
+    for s in model.states():
+        sd = g.nodes[s]
+        if "ranges" not in sd or s in seers:
+            continue
+        pose = np.array([[sd["x"], sd["y"], sd["theta"]]])
+        if model.scan.covers(pose, np.asarray(sd["ranges"], np.float32)[None, :],
+                             (d["x"], d["y"]), miss_range)[0]:
+            missed += 1
+    return Evidence(len(seers), len({g.nodes[s]["episode"] for s in seers}), missed,
+                    float(d["score"]))
+
+
+@PROPS
+@given(models(scan=True, max_states=10))
+def test_evidence_equals_a_state_by_state_count(m):
+    ev = object_evidence(m)
+    for o in m.objects():
+        assert ev[o] == brute_evidence(m, o)
+
+
+@PROPS
+@given(models(model_id="a", scan=True), models(model_id="b", scan=True), st.data())
+def test_merging_combines_evidence_exactly(a, b, data):
+    """The evidence of every object of a merge is that of the union of states and views."""
+    T = data.draw(st.tuples(st.floats(-3, 3), st.floats(-3, 3),
+                            st.floats(-math.pi, math.pi, exclude_max=True)))
+    m = merge(a, b, transform=T)
+    ev = object_evidence(m)
+    for o in m.objects():
+        assert ev[o] == brute_evidence(m, o)
+    # views and scores are conserved: no view is lost or counted twice
+    total = sum(e.n_views for e in ev.values())
+    assert total == sum(1 for *_e, k in m.graph.edges(keys=True) if k == SEES)
+    assert sum(e.score for e in ev.values()) == pytest.approx(
+        sum(d["score"] for *_e, k, d in m.graph.edges(keys=True, data=True) if k == SEES))
+
+
+@PROPS
+@given(models(scan=True), st.data())
+def test_range_profiles_survive_transform_and_self_merge(m, data):
+    s = data.draw(st.sampled_from(sorted(m.states())))
+    assert merge(m, m, anchor=(s, s)) == m
+    moved = m.copy().transform((1.0, -2.0, 0.7))
+    for st_ in m.states():
+        assert m.ranges(st_).tobytes() == moved.ranges(st_).tobytes()
+
+
+def test_scan_table_grows_like_a_rebuilt_one():
+    m = AbstractModel(2, model_id="t", scan=SCAN)
+    table = ScanTable(m)
+    rng = np.random.default_rng(0)
+    for k in range(40):
+        sid = m.add_state(rng.normal(size=2), (k * 0.3, 0.0, k * 0.1),
+                          ranges=rng.uniform(0.5, 5, SCAN.bins))
+        d = m.graph.nodes[sid]
+        table.add(sid, (d["x"], d["y"], d["theta"]), d["ranges"])
+    fresh = ScanTable(m)
+    assert table.ids == fresh.ids
+    assert np.array_equal(table.poses, fresh.poses)
+    assert table.covering(3.0, 0.5) == fresh.covering(3.0, 0.5)
+
+
+def test_a_glimpse_looked_at_again_loses_belief_and_is_forgotten():
+    scan = ScanGeometry(90.0, 4, 5.0)
+    far = np.full(4, 5.0)
+    m = AbstractModel(2, model_id="f", scan=scan)
+    m.add_state([1.0, 0.0], (0, 0, 0), [Detection("chair", (2.0, 0.0, 0.4))], ranges=far)
+    m.add_state([0.0, 1.0], (0, 0.1, 0), [Detection("chair", (2.0, 0.05, 0.4))], ranges=far)
+    m.add_state([1.0, 1.0], (5, 5, 0), [Detection("bed", (7.0, 5.0, 0.4))], ranges=far)
+    (chair,) = [o for o in m.objects() if m.graph.nodes[o]["cls"] == "chair"]
+    assert belief(object_evidence(m)[chair]) > 0.8  # two views, no miss
+    for k in range(6):  # six more looks at the chair's place, nothing there
+        m.add_state([0.5, k + 1.0], (0.3, -0.2 + 0.1 * k, 0.05 * k), ranges=far)
+    ev = object_evidence(m)[chair]
+    assert ev.n_missed == 6 and belief(ev) < 0.2
+    assert forget(m, 0.2) == 1
+    assert [m.graph.nodes[o]["cls"] for o in m.objects()] == ["bed"]  # unjudged glimpse stays
+
+
+def test_a_wall_hides_an_object_from_negative_evidence():
+    scan = ScanGeometry(90.0, 4, 5.0)
+    m = AbstractModel(2, model_id="w", scan=scan)
+    m.add_state([1.0, 0.0], (0, 0, 0), [Detection("chair", (2.5, 0.0, 0.4))],
+                ranges=np.full(4, 5.0))
+    m.add_state([0.0, 1.0], (0, 0, 0.01), ranges=np.full(4, 1.0))  # a wall at 1 m
+    assert object_evidence(m)["o0"].n_missed == 0
+
+
+def test_belief_model_weights():
+    bm = BeliefModel(p_detect=0.6, p_false=0.05, prior=-3.0)
+    assert bm.view_weight == pytest.approx(math.log(12))
+    assert belief(Evidence(2, 1, 0, 2.0), bm) > 0.85
+    assert belief(Evidence(2, 1, 10, 2.0), bm) < 0.1
+
+
+def test_association_keeps_a_large_object_seen_from_two_sides_as_one():
+    m = AbstractModel(2, model_id="bed")
+    # a 2 m bed seen from its foot and from its side: the two surface centres 0.9 m apart
+    m.add_state([1.0, 0.0], (0, 0, 0), [Detection("bed", (2.0, 0.0, 0.3), radius=0.8)])
+    m.add_state([0.0, 1.0], (3, -2, 1.5), [Detection("bed", (2.6, 0.7, 0.3), radius=0.9)])
+    assert m.n_objects == 1
+    # two chairs 0.8 m apart stay two
+    m.add_state([1.0, 1.0], (5, 5, 0), [Detection("chair", (7.0, 5.0, 0.4), radius=0.25),
+                                        Detection("chair", (7.0, 5.8, 0.4), radius=0.25)])
+    assert m.n_objects == 3
+
+
+def test_occupancy_and_known_free():
+    scan = ScanGeometry(90.0, 9, 5.0)
+    m = AbstractModel(2, model_id="o", scan=scan)
+    m.add_state([1.0, 0.0], (0, 0, 0), ranges=np.full(9, 3.0))  # a wall 3 m ahead
+    grid = query.occupancy(m)
+    assert query.known_free(m, 1.5, 0.0, grid) and not query.known_free(m, -1.0, 0.0, grid)
+    assert grid.state_at(3.0, 0.0) == "obstacle"
+    same = occupancy_from_scans(scan, [(0, 0, 0)], [np.full(9, 3.0)])
+    assert np.array_equal(same.free, grid.free)
+    assert query.occupancy(AbstractModel(2)) is None
+    # a transformed model's floor is the same floor, moved
+    moved = m.copy().transform((2.0, 1.0, math.pi / 2))
+    x, y = se2.apply_to_point((2.0, 1.0, math.pi / 2), 1.5, 0.0)
+    assert query.known_free(moved, x, y)
+
+
+def test_trusted_objects_lists_evidence():
+    m = AbstractModel(2, model_id="q")
+    m.add_state([1.0, 0.0], (0, 0, 0), [Detection("chair", (1.0, 0.0, 0.4), score=0.9)])
+    m.add_state([0.0, 1.0], (0.2, 0, 0), [Detection("chair", (1.0, 0.05, 0.4), score=0.7)])
+    (row,) = query.trusted_objects(m, "chair")
+    assert row["views"] == 2 and row["score"] == pytest.approx(1.6) and row["belief"] > 0.8
