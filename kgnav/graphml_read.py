@@ -140,9 +140,16 @@ def describe_mode(st_mode: int) -> str:
     return "not a regular file"
 
 
+def _size(n: int) -> str:
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{n} bytes"
+
+
 def _too_big(size: int, limit: int) -> str:
     return (
-        f"{size / 1e6:.1f} MB, over the {limit / 1e6:.1f} MB limit "
+        f"{_size(size)}, over the {_size(limit)} limit "
         f"(raise it with max_bytes= or {MAX_BYTES_ENV})"
     )
 
@@ -685,9 +692,8 @@ class _XmlReader:
             root = parser.close()
             handle_events()
         except etree.LxmlError as exc:
-            raise ModelFileError(
-                self.path, f"not valid XML ({getattr(exc, 'msg', None) or exc})"
-            ) from None
+            msg = " ".join(str(getattr(exc, "msg", None) or exc).split())  # libxml2 ends some in \n
+            raise ModelFileError(self.path, f"not valid XML ({msg})") from None
         if not self.prolog_checked:
             self.check_prolog(root)
         self.check_root(root)

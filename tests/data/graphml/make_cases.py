@@ -105,7 +105,8 @@ def cases(v: str) -> dict[str, str | bytes]:
         "underscore_int": edit(v, '<data key="e3">400</data>', '<data key="e3">4_00</data>'),
         "schema_version_2": edit(v, '<data key="g0">1</data>', '<data key="g0">2</data>'),
         "yed_graphics": edit(
-            edit(v, NODE_KEYS, NODE_KEYS + '<key id="d6" for="node" yfiles.type="nodegraphics"/>\n'),
+            edit(v, NODE_KEYS,
+                 NODE_KEYS + '<key id="d6" for="node" yfiles.type="nodegraphics"/>\n'),
             '<data key="n7">tiny/s0</data>', '<data key="n7">tiny/s0</data><data key="d6">'
             '<y:ShapeNode xmlns:y="http://www.yworks.com/xml/graphml"/></data>'),
         "no_namespace": v.replace(' xmlns="http://graphml.graphdrawing.org/xmlns"', ""),
