@@ -57,6 +57,7 @@ from kgnav.graphml_schema import (
     format_other,
     other_type,
     schema,
+    xml_text,
 )
 from kgnav.model import SCHEMA_VERSION, SEES, AbstractModel
 
@@ -174,52 +175,52 @@ class _Writer:
             parts.append(f'<data key="{self.ids[domain, name]}">{text}</data>')
         return "".join(parts)
 
-    def chunks(self) -> Iterator[str]:
-        out = [
+    def lines(self) -> Iterator[str]:
+        """The document, one line at a time: the header, keys, graph, nodes, edges, the end."""
+        yield (
             "<?xml version='1.0' encoding='utf-8'?>\n"
             f'<graphml xmlns="{NS}" xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
             f'xsi:schemaLocation="{NS} {NS}/1.0/graphml.xsd">\n'
-        ]
+        )
         for kid, domain, name, gtype in self.decl:
-            out.append(
-                f'<key id="{kid}" for="{domain}" attr.name={quoteattr(name)} '
+            yield (
+                f'<key id="{kid}" for="{domain}" attr.name={quoteattr(xml_text(name))} '
                 f'attr.type="{gtype}" />\n'
             )
-        out.append('<graph edgedefault="directed">\n')
-        out.append(self._data("graph", "", self.g.graph) + "\n")
+        yield '<graph edgedefault="directed">\n'
+        yield self._data("graph", "", self.g.graph) + "\n"
         quoted = {}
         kind_key = self.ids["node", "kind"]
-        size = 0
         for n, d in self.g.nodes(data=True):
             quoted[n] = q = quoteattr(n)
             kind = d.get("kind")
             if kind != "state" and kind != "object":
                 raise ValueError(f"node {n!r}: kind {kind!r} is neither state nor object")
-            text = (
+            yield (
                 f'<node id={q}><data key="{kind_key}">{kind}</data>'
                 f"{self._data(kind, repr(n), d)}</node>\n"
             )
-            out.append(text)
-            size += len(text)
-            if size > _CHUNK:
-                yield "".join(out)
-                out, size = [], 0
         quoted_keys: dict[str, str] = {}
         for u, v, k, d in self.g.edges(keys=True, data=True):
             where = "sees" if k == SEES else "transition"
             qk = quoted_keys.get(k)
             if qk is None:
                 qk = quoted_keys[k] = quoteattr(str(k))
-            text = (
+            yield (
                 f"<edge id={qk} source={quoted[u]} target={quoted[v]}>"
                 f"{self._data(where, f'{u!r}->{v!r}', d)}</edge>\n"
             )
-            out.append(text)
-            size += len(text)
+        yield "</graph>\n</graphml>\n"
+
+    def chunks(self) -> Iterator[str]:
+        """:meth:`lines` joined into pieces of about :data:`_CHUNK` characters."""
+        out, size = [], 0
+        for line in self.lines():
+            out.append(line)
+            size += len(line)
             if size > _CHUNK:
                 yield "".join(out)
                 out, size = [], 0
-        out.append("</graph>\n</graphml>\n")
         yield "".join(out)
 
 

@@ -148,14 +148,22 @@ class Numbers:
         return self._template % tuple(map(float, v))
 
 
+class _String:
+    """A codec whose value is held as its text."""
+
+    gtype = "string"
+
+    def format(self, v) -> str:
+        return xml_text(str(v))
+
+
 @dataclass(frozen=True)
-class Text:
+class Text(_String):
     """A string, optionally matching ``pattern`` (described by ``what``) or one of ``choices``."""
 
     pattern: re.Pattern | None = None
     what: str = ""
     choices: tuple[str, ...] = ()
-    gtype = "string"
 
     def parse(self, text: str, ctx) -> str:
         if self.pattern is not None and not self.pattern.fullmatch(text):
@@ -164,16 +172,12 @@ class Text:
             raise ValueError(f"{show(text)} is not one of {', '.join(self.choices)}")
         return text
 
-    def format(self, v) -> str:
-        return xml_text(str(v))
-
 
 @dataclass(frozen=True)
-class JsonList:
+class JsonList(_String):
     """A JSON list of integers (``item="int"``) or model ids (``item="id"``); held as the text."""
 
     item: str
-    gtype = "string"
 
     def parse(self, text: str, ctx) -> str:
         try:
@@ -193,23 +197,15 @@ class JsonList:
                 raise ValueError(f"item {show(json.dumps(x))} is not {want}")
         return text
 
-    def format(self, v) -> str:
-        return xml_text(str(v))
-
 
 @dataclass(frozen=True)
-class Classes:
+class Classes(_String):
     """Comma-separated, non-empty class names."""
-
-    gtype = "string"
 
     def parse(self, text: str, ctx) -> str:
         if not text or any(not c for c in text.split(",")):
             raise ValueError(f"{show(text)} is not a comma-separated list of class names")
         return text
-
-    def format(self, v) -> str:
-        return xml_text(str(v))
 
 
 @dataclass(frozen=True)
