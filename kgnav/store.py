@@ -137,13 +137,15 @@ class ModelStore:
 
     def _locked(self):
         """Take the store lock; then remove what killed writers on this host left behind."""
-        lock = self._lock()
         try:
+            lock = self._lock()
             lock.acquire()
         except Timeout:
             raise StoreError(
                 f"{self.root}: another writer held the store lock for {self.lock_timeout:g} s"
             ) from None
+        except OSError as exc:
+            raise StoreError(f"{self.root}: cannot lock ({exc.strerror or exc})") from None
         self.remove_stale_temps()
         return lock
 
@@ -220,9 +222,7 @@ class ModelStore:
         path = self.path_of(model.model_id)
         lock = self._locked()
         try:
-            write_model(model, path)
-        except OSError as exc:
-            raise StoreError(f"{path}: cannot write ({exc.strerror or exc})") from None
+            _write(model, path)
         finally:
             lock.release()
         return path
@@ -234,13 +234,14 @@ class ModelStore:
 
         Use this when several processes may extend the same model, so no update is lost.
         """
+        path = self.path_of(model_id)
         lock = self._locked()
         try:
-            current = self.load(model_id) if self.path_of(model_id).is_file() else None
+            current = self.load(model_id) if os.path.lexists(path) else None
             new = fn(current)
             if new.model_id != model_id:
                 raise StoreError(f"update of {model_id!r} returned model {new.model_id!r}")
-            write_model(new, self.path_of(model_id))
+            _write(new, path)
             return new
         finally:
             lock.release()
@@ -253,8 +254,17 @@ class ModelStore:
             path.unlink()
         except FileNotFoundError:
             raise StoreError(f"{self.root}: no model {model_id!r}") from None
+        except OSError as exc:
+            raise StoreError(f"{path}: cannot delete ({exc.strerror or exc})") from None
         finally:
             lock.release()
+
+
+def _write(model: AbstractModel, path: Path) -> None:
+    try:
+        write_model(model, path)
+    except OSError as exc:
+        raise StoreError(f"{path}: cannot write ({exc.strerror or exc})") from None
 
 
 def _reason(exc: Exception) -> str:

@@ -153,3 +153,16 @@ def test_size_limit(tmp_path, monkeypatch):
         ModelStore(tmp_path).load("big")
     monkeypatch.setenv("KGNAV_MAX_MODEL_BYTES", "1M")
     assert ModelStore(tmp_path).load("big").n_states == 4
+
+
+def test_write_problems_are_store_errors(tmp_path):
+    (tmp_path / "m.graphml").mkdir()  # a directory where the model file should be
+    store = ModelStore(tmp_path)
+    with pytest.raises(StoreError, match="m.graphml: cannot write"):
+        store.save(_model("m"))
+    with pytest.raises(ModelFileError, match="not a regular file .a directory."):
+        store.update("m", lambda cur: _model("m"))
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(StoreError, match="cannot lock"):
+        ModelStore(blocker / "sub").save(_model("m"))
