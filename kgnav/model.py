@@ -155,7 +155,7 @@ class AbstractModel:
         for name, tol in (("pose_tol", pose_tol), ("angle_tol", angle_tol),
                           ("feature_tol", feature_tol), ("object_radius", object_radius)):
             if not 0.0 <= float(tol) <= MAX_COORD:
-                raise ValueError(f"{name} must be a finite number >= 0, got {tol!r}")
+                raise ValueError(f"{name} must be a number in [0, {MAX_COORD:g}], got {tol!r}")
         self.graph = nx.MultiDiGraph()
         self.graph.graph.update(
             kgnav_schema=SCHEMA_VERSION,
