@@ -40,7 +40,10 @@ def vm(key):
             return int(line.split()[1]) / 1024
 before = vm("VmRSS:")
 t = time.perf_counter()
-m = gr._XmlReader({file!r}, 1 << 40).read() if {xml!r} else gr.read_model({file!r}, max_bytes=1 << 40)
+if {xml!r}:
+    m = gr._XmlReader({file!r}, 1 << 40).read()
+else:
+    m = gr.read_model({file!r}, max_bytes=1 << 40)
 print(json.dumps(dict(before=before, peak=vm("VmHWM:"), s=time.perf_counter() - t,
                       states=m.n_states)))
 """
