@@ -1,18 +1,24 @@
-"""The ``kgnav`` command line: inspect, merge, query and export Abstract Models; list a store.
+"""The ``kgnav`` command line: inspect, merge, query and export Abstract Models; list and check a
+store.
 
-Exit status: 0 on success, 1 for bad data (a corrupt file, an unknown state or class), 2 for bad
-usage (a missing or malformed argument). Either error is one line on stderr naming the problem.
+Exit status: 0 on success, 1 for bad data (a corrupt file, an unknown state or class, a store
+with problems), 2 for bad usage (a missing or malformed argument). Either error is one line on
+stderr naming the problem. Everything printed from a file (names, ids, classes) is printed as it
+is: rich markup is off, and control characters are shown escaped (``\x1b``, ``\n``).
 """
 
 from __future__ import annotations
 
 import json
+import os
+import re
 import sys
 from pathlib import Path
 
 import click
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
 from kgnav import query
 from kgnav.errors import KgnavError
@@ -20,7 +26,21 @@ from kgnav.graphml import read_model
 from kgnav.merge import best_anchor, merge
 from kgnav.store import ModelStore
 
-out = Console(highlight=False, soft_wrap=True)
+# markup off: a class or file name like "[/bold]" is text, not a style
+out = Console(highlight=False, soft_wrap=True, markup=False, emoji=False)
+
+# C0/C1 controls, line and paragraph separators, bidirectional overrides
+_UNSAFE = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\u202a-\u202e\u2066-\u2069]")
+
+
+def safe(value) -> str:
+    """``str(value)`` for a terminal: control characters escaped, so it prints as one line and
+    shows what the string holds.
+
+    >>> safe("a\\nb\\x1b[31m")
+    'a\\\\nb\\\\x1b[31m'
+    """
+    return _UNSAFE.sub(lambda m: m.group().encode("unicode_escape").decode("ascii"), str(value))
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -41,6 +61,14 @@ class DataError(KgnavError):
 def _about(path: Path, exc: KgnavError) -> DataError:
     msg = str(exc)
     return DataError(msg if str(path) in msg else f"{path}: {msg}")
+
+
+def _table(*columns: str, title: str) -> Table:
+    return Table(*columns, title=safe(title))
+
+
+def _row(table: Table, *cells) -> None:
+    table.add_row(*(safe(c) for c in cells))
 
 
 def _emit_json(obj) -> None:
@@ -79,22 +107,19 @@ def inspect(file: Path, as_json: bool) -> None:
     if as_json:
         _emit_json(info)
         return
-    out.print(f"[bold]{file}[/bold]  model [cyan]{info['model_id']}[/cyan]")
+    out.print(Text.assemble((safe(file), "bold"), "  model ", (safe(info["model_id"]), "cyan")))
     for key in ("schema_version", "feature_dim", "extractor", "states", "objects", "transitions",
-                "views"):
-        out.print(f"  {key:<15}{info[key]}")
-    out.print(f"  {'actions':<15}{info['actions']}")
-    out.print(f"  {'episodes':<15}{info['episodes']}")
-    out.print(f"  {'merged_from':<15}{info['merged_from']}")
+                "views", "actions", "episodes", "merged_from"):
+        out.print(f"  {key:<15}{safe(info[key])}")
     if info["extent"]:
         ex = info["extent"]
         out.print(
             f"  {'extent':<15}x {ex['x'][0]:.2f}..{ex['x'][1]:.2f} m, "
             f"y {ex['y'][0]:.2f}..{ex['y'][1]:.2f} m"
         )
-    table = Table("class", "objects", "views", "max views", title="class inventory")
+    table = _table("class", "objects", "views", "max views", title="class inventory")
     for cls, c in info["classes"].items():
-        table.add_row(cls, str(c["objects"]), str(c["views"]), str(c["max_views"]))
+        _row(table, cls, c["objects"], c["views"], c["max_views"])
     out.print(table)
 
 
@@ -127,10 +152,10 @@ def merge_cmd(target: Path, source: Path, output: Path, anchor) -> None:
         note = f"anchor {ta}:{sb}"
     merged = merge(a, b, anchor=(ta, sb))
     merged.save(output)
-    out.print(
+    out.print(safe(
         f"merged {source} into {target} with {note}: {merged.n_states} states, "
         f"{merged.n_objects} objects -> {output}"
-    )
+    ))
 
 
 @app.command("query")
@@ -167,16 +192,16 @@ def query_cmd(file: Path, goal: str, near, top: int, as_json: bool) -> None:
         )
         return
     if chosen is None:
-        out.print(f"{file}: no {goal} in model {model.model_id}")
+        out.print(safe(f"{file}: no {goal} in model {model.model_id}"))
         return
     x, y, z = chosen.position
-    out.print(
+    out.print(safe(
         f"goal {goal}: object {chosen.id} at ({x:.2f}, {y:.2f}, {z:.2f}), "
         f"seen from {chosen.n_views} states"
-    )
-    table = Table("rank", "object", "x", "y", "views", title=f"{goal} by visibility")
+    ))
+    table = _table("rank", "object", "x", "y", "views", title=f"{goal} by visibility")
     for i, o in enumerate(ranked, 1):
-        table.add_row(str(i), o.id, f"{o.position[0]:.2f}", f"{o.position[1]:.2f}", str(o.n_views))
+        _row(table, i, o.id, f"{o.position[0]:.2f}", f"{o.position[1]:.2f}", o.n_views)
     out.print(table)
 
 
@@ -193,7 +218,7 @@ def export_cmd(file: Path, html: Path) -> None:
     from kgnav.export_html import export_html
 
     path = export_html(read_model(file), html)
-    out.print(f"wrote {path}")
+    out.print(safe(f"wrote {path}"))
 
 
 @store_app.command("ls")
@@ -204,12 +229,38 @@ def store_ls(directory: Path, as_json: bool) -> None:
     _list_store(directory, as_json)
 
 
+@store_app.command("check")
+@click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
+@_JSON
+def store_check(directory: Path, as_json: bool) -> None:
+    """Report every problem in a store, changing nothing; exit status 1 if there is any.
+
+    Problems: model files that do not load (corrupt, foreign, another schema version, a name
+    that is not their model id), entries named like a model that are not regular files
+    (directories, FIFOs, dangling symbolic links, loops), and temporary files that interrupted
+    saves left behind.
+    """
+    if not directory.is_dir():
+        raise DataError(f"{directory}: not a directory")
+    good, problems = ModelStore(directory).check()
+    if as_json:
+        _emit_json({"directory": str(directory), "models": good,
+                    "problems": [{"path": p.path, "kind": p.kind, "reason": p.reason}
+                                 for p in problems]})
+    else:
+        for p in problems:
+            click.echo(safe(f"{p.path}: {p.reason}"))
+        click.echo(safe(f"{directory}: {len(good)} models load, {len(problems)} problems"))
+    if problems:
+        raise click.exceptions.Exit(1)
+
+
 def _list_store(directory: Path, as_json: bool) -> None:
     if not directory.is_dir():
         raise DataError(f"{directory}: not a directory")
     models, problems = ModelStore(directory).load_all()
     for p in problems:
-        click.echo(f"kgnav: warning: skipped {p}", err=True)
+        click.echo(f"kgnav: warning: skipped {safe(p)}", err=True)
     rows = [
         {
             "model_id": m.model_id,
@@ -225,11 +276,11 @@ def _list_store(directory: Path, as_json: bool) -> None:
         _emit_json({"models": rows, "skipped": [{"path": p.path, "reason": p.reason}
                                                  for p in problems]})
         return
-    table = Table("model", "states", "objects", "transitions", "episodes", "merged from",
-                  title=str(directory))
+    table = _table("model", "states", "objects", "transitions", "episodes", "merged from",
+                   title=str(directory))
     for r in rows:
-        table.add_row(r["model_id"], str(r["states"]), str(r["objects"]), str(r["transitions"]),
-                      str(r["episodes"]), ", ".join(r["merged_from"]))
+        _row(table, r["model_id"], r["states"], r["objects"], r["transitions"], r["episodes"],
+             ", ".join(r["merged_from"]))
     out.print(table)
 
 
@@ -265,13 +316,13 @@ def demo(out_dir: Path, worlds: int, episodes: int, steps: int, seed: int, overw
             store_dir, worlds=worlds, episodes=episodes, steps=steps, seed=seed,
             progress=lambda done, total: bar.update(task, completed=done),
         )
-    table = Table("world", "episode", "relocated", "at step", "distance", "model", "states",
-                  "objects", title="episodes")
+    table = _table("world", "episode", "relocated", "at step", "distance", "model", "states",
+                   "objects", title="episodes")
     for r in rows:
-        table.add_row(str(r.world), str(r.episode), "yes" if r.relocated else "no",
-                      "" if r.match_step is None else str(r.match_step),
-                      "" if r.match_distance is None else f"{r.match_distance:.3f}",
-                      r.model_id, str(r.states), str(r.objects))
+        _row(table, r.world, r.episode, "yes" if r.relocated else "no",
+             "" if r.match_step is None else r.match_step,
+             "" if r.match_distance is None else f"{r.match_distance:.3f}",
+             r.model_id, r.states, r.objects)
     out.print(table)
     _list_store(store_dir, as_json=False)
     models, _ = store.load_all()
@@ -283,7 +334,7 @@ def demo(out_dir: Path, worlds: int, episodes: int, steps: int, seed: int, overw
         else:
             x, y, _ = goal.position
             where = f"{goal.id} at ({x:.2f}, {y:.2f}), {goal.n_views} views"
-        out.print(f"{model_id}: goal 'chair' -> {where}; page {page}")
+        out.print(safe(f"{model_id}: goal 'chair' -> {where}; page {page}"))
 
 
 def _register() -> None:
@@ -313,16 +364,26 @@ def main(argv: list[str] | None = None) -> None:
     except click.UsageError as exc:
         path = exc.ctx.command_path if exc.ctx else "kgnav"
         where = f" ({path})" if " " in path else ""  # name the subcommand, if any
-        click.echo(f"kgnav: usage error{where}: {exc.format_message()}", err=True)
+        click.echo(f"kgnav: usage error{where}: {safe(exc.format_message())}", err=True)
         sys.exit(2)
     except KgnavError as exc:
-        click.echo(f"kgnav: error: {exc}", err=True)
+        click.echo(f"kgnav: error: {safe(exc)}", err=True)
+        sys.exit(1)
+    except OSError as exc:  # an output that cannot be written, a full disk...
+        where = f"{exc.filename}: " if exc.filename else ""
+        click.echo(f"kgnav: error: {safe(where)}{safe(exc.strerror or exc)}", err=True)
         sys.exit(1)
     except click.exceptions.Abort:
         click.echo("kgnav: aborted", err=True)
         sys.exit(130)
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)
+    except Exception as exc:  # a bug: still one line, unless asked for the traceback
+        if os.environ.get("KGNAV_DEBUG"):
+            raise
+        click.echo(f"kgnav: internal error: {safe(type(exc).__name__)}: {safe(exc)} "
+                   "(KGNAV_DEBUG=1 shows the traceback)", err=True)
+        sys.exit(1)
     sys.exit(rv if isinstance(rv, int) else 0)
 
 

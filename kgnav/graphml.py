@@ -10,10 +10,17 @@ scalars, so
 * a view's bounding box and observed position are space-separated numbers (``bbox``, ``obs``);
 * an edge's kind follows from its key and is not written.
 
-Saving is atomic: the file is written beside the target and renamed over it.
-``networkx.read_graphml(path, force_multigraph=True)`` reads the files too; kgnav writes and
-parses them itself, schema first, because networkx's generic reader and writer take several
-seconds for a 1e4-state model (``bench/bench_graphml.py`` measures ours).
+The schema — every attribute with its type, range and the version that introduced it — is the
+table in :mod:`kgnav.graphml_schema`; :func:`read_model` (:mod:`kgnav.graphml_read`) checks every
+value of a file against it and refuses anything else with a one-line
+:class:`~kgnav.errors.ModelFileError`. Attributes outside the schema (added by another tool) are
+kept, typed as declared, and written back by :func:`write_model`.
+
+Saving is atomic (:func:`kgnav.atomic.atomic_open`): the file is written beside the target and
+renamed over it, keeping the target's permissions. Writing streams the document in chunks, one
+element per line. ``networkx.read_graphml(path, force_multigraph=True)`` reads the files too;
+kgnav writes and parses them itself, schema first, because networkx's generic reader and writer
+take several seconds for a 1e4-state model (``bench/bench_graphml.py`` measures ours).
 
 >>> import numpy as np, tempfile, os
 >>> from kgnav import AbstractModel
@@ -27,289 +34,210 @@ True
 
 from __future__ import annotations
 
-import base64
 import os
-from xml.sax.saxutils import escape, quoteattr
-
-import networkx as nx
-import numpy as np
-from lxml import etree
+from collections.abc import Iterator
+from xml.sax.saxutils import quoteattr
 
 from kgnav.atomic import atomic_open
-from kgnav.errors import ModelFileError, SchemaVersionError
+from kgnav.graphml_read import (
+    CHUNK,
+    MAX_BYTES,
+    MAX_BYTES_ENV,
+    NS,
+    max_bytes_default,
+    paused_gc,
+    read_model,
+)
+from kgnav.graphml_schema import (
+    ATTRIBUTES,
+    DOMAIN,
+    KNOWN,
+    decode_features,
+    encode_features,
+    format_other,
+    other_type,
+    schema,
+    xml_text,
+)
 from kgnav.model import SCHEMA_VERSION, SEES, AbstractModel
 
-_DTYPE = np.dtype("<f4")
-_NS = "http://graphml.graphdrawing.org/xmlns"
+__all__ = [
+    "ATTRIBUTES",
+    "MAX_BYTES",
+    "MAX_BYTES_ENV",
+    "decode_features",
+    "encode_features",
+    "max_bytes_default",
+    "read_model",
+    "schema",
+    "to_graphml",
+    "write_model",
+]
 
-# Schema: scope -> attribute -> GraphML type. Node attributes are shared by both node kinds.
-_GRAPH = {
-    "kgnav_schema": "long",
-    "model_id": "string",
-    "feature_dim": "long",
-    "feature_dtype": "string",
-    "extractor": "string",
-    "classes": "string",
-    "episodes": "string",
-    "merged_from": "string",
-    "pose_tol": "double",
-    "angle_tol": "double",
-    "feature_tol": "double",
-    "object_radius": "double",
-}
-_NODE = {
-    "kind": "string",
-    "x": "double",
-    "y": "double",
-    "theta": "double",
-    "z": "double",
-    "episode": "long",
-    "step": "long",
-    "features": "string",
-    "cls": "string",
-    "n_obs": "long",
-    "n_views": "long",
-    "origin": "string",
-}
-_EDGE = {"count": "long", "bbox": "string", "distance": "double", "pixels": "long", "obs": "string"}
-_REQUIRED = {
-    "state": {"kind", "x", "y", "theta", "episode", "step", "features", "origin"},
-    "object": {"kind", "cls", "x", "y", "z", "n_obs", "n_views", "origin"},
-    "transition": {"count"},
-    "sees": {"bbox", "distance", "pixels", "obs"},
-}
-_KEY_ID = {
-    **{("graph", n): f"g{i}" for i, n in enumerate(_GRAPH)},
-    **{("node", n): f"n{i}" for i, n in enumerate(_NODE)},
-    **{("edge", n): f"e{i}" for i, n in enumerate(_EDGE)},
-}
-_PY = {"boolean": bool, "int": int, "long": int, "float": float, "double": float, "string": str}
+_CHUNK = CHUNK  # bytes per write
 
 
-def encode_features(f: np.ndarray) -> str:
-    """Base64 of the vector's little-endian float32 bytes."""
-    return base64.b64encode(np.ascontiguousarray(f, dtype=_DTYPE).tobytes()).decode("ascii")
+class _Writer:
+    """The chunks of one model's GraphML document, with every key declared up front."""
 
+    def __init__(self, model: AbstractModel):
+        self.g = model.graph
+        rows = schema(SCHEMA_VERSION)
+        ids: dict[tuple[str, str], str] = {}
+        decl: list[tuple[str, str, str, str]] = []  # id, domain, name, type
+        for domain in ("graph", "node", "edge"):
+            names = [name for (dom, name) in KNOWN if dom == domain]
+            for i, name in enumerate(names):
+                ids[domain, name] = kid = f"{domain[0]}{i}"
+                decl.append((kid, domain, name, KNOWN[domain, name]))
+        self.others = self._other_keys(ids, decl)
+        self.ids, self.decl = ids, decl
+        self.formats = {  # per element kind: (name, codec.format) in schema order
+            where: [(name, a.codec.format) for name, a in attrs.items()]
+            for where, attrs in rows.items()
+        }
+        self.templates = {
+            where: "".join(f'<data key="{ids[DOMAIN[where], name]}">%s</data>' for name in attrs)
+            for where, attrs in rows.items()
+        }
+        self.allowed = {
+            w: set(attrs) | ({"kind"} if w != "graph" else set()) for w, attrs in rows.items()
+        }
+        self.sizes = {w: len(names) for w, names in self.allowed.items()}
 
-def decode_features(text: str, dim: int) -> np.ndarray:
-    """Inverse of :func:`encode_features`; raises ``ValueError`` on a bad payload."""
-    # non-strict decoding is 3x faster; a damaged payload still fails the length check
-    raw = base64.b64decode(text)
-    if len(raw) != dim * _DTYPE.itemsize:
-        raise ValueError(f"{len(raw) // _DTYPE.itemsize} values, expected {dim}")
-    f = np.frombuffer(raw, dtype=_DTYPE).astype(np.float32)
-    f.setflags(write=False)
-    return f
+    def _other_keys(self, ids, decl) -> dict[tuple[str, str], str]:
+        """Declare a key per attribute outside the schema, typed from its values."""
+        types: dict[tuple[str, str], set[str]] = {}
 
+        def scan(domain: str, what: str, d: dict) -> None:
+            for name, v in d.items():
+                if (domain, name) not in KNOWN and not (domain == "edge" and name == "kind"):
+                    try:
+                        t = other_type(v)
+                    except ValueError as exc:
+                        raise ValueError(f"{what}: attribute {name!r} {exc}") from None
+                    types.setdefault((domain, name), set()).add(t)
 
-def _numbers(values) -> str:
-    return " ".join(repr(float(v)) for v in values)
+        scan("graph", "graph", self.g.graph)
+        known_node = {n for (d, n) in KNOWN if d == "node"}
+        known_edge = {n for (d, n) in KNOWN if d == "edge"} | {"kind"}
+        for n, d in self.g.nodes(data=True):
+            if not d.keys() <= known_node:
+                scan("node", f"node {n!r}", d)
+        for u, v, k, d in self.g.edges(keys=True, data=True):
+            if not d.keys() <= known_edge:
+                scan("edge", f"edge {u!r}->{v!r} ({k!r})", d)
+        out = {}
+        for (domain, name), found in types.items():
+            if found <= {"long", "double"}:
+                gtype = "double" if "double" in found else "long"
+            elif len(found) == 1:
+                gtype = found.pop()
+            else:
+                raise ValueError(f"{domain} attribute {name!r} mixes {' and '.join(sorted(found))}")
+            kid = f"x{domain[0]}{len(out)}"
+            ids[domain, name] = kid
+            out[domain, name] = gtype
+            decl.append((kid, domain, name, gtype))
+        return out
 
+    def _data(self, where: str, label, d: dict) -> str:
+        """The <data> elements of one element of kind ``where`` (schema order, then others)."""
+        try:
+            values = tuple([fmt(d[name]) for name, fmt in self.formats[where]])
+            text = self.templates[where] % values
+        except (KeyError, ValueError, TypeError):  # a missing or bad value: the slow way
+            text = self._data_slow(where, label, d)
+        if len(d) != self.sizes[where]:  # attributes outside the schema
+            text += self._others(where, label, d)
+        return text
 
-def _text(value) -> str:
-    t = type(value)
-    if t is float:
-        return repr(value)  # shortest repr round-trips exactly
-    if t is int:
-        return str(value)
-    value = str(value)
-    return escape(value) if ("&" in value or "<" in value or ">" in value) else value
+    def _data_slow(self, where: str, label, d: dict) -> str:
+        parts = []
+        for name, fmt in self.formats[where]:
+            if name in d:
+                try:
+                    text = fmt(d[name])
+                except (ValueError, TypeError) as exc:
+                    raise ValueError(f"{where} {label}: attribute {name!r}: {exc}") from None
+                parts.append(f'<data key="{self.ids[DOMAIN[where], name]}">{text}</data>')
+        return "".join(parts)
 
+    def _others(self, where: str, label, d: dict) -> str:
+        domain = DOMAIN[where]
+        parts = []
+        for name, v in d.items():
+            if name in self.allowed[where]:
+                continue
+            if (domain, name) in KNOWN:
+                raise ValueError(f"{where} {label}: {name!r} is not a {where} attribute")
+            text = format_other(v, self.others[domain, name])
+            parts.append(f'<data key="{self.ids[domain, name]}">{text}</data>')
+        return "".join(parts)
 
-def _data(scope: str, attrs: dict) -> str:
-    return "".join(f'<data key="{_KEY_ID[scope, k]}">{_text(v)}</data>' for k, v in attrs.items())
+    def lines(self) -> Iterator[str]:
+        """The document, one line at a time: the header, keys, graph, nodes, edges, the end."""
+        yield (
+            "<?xml version='1.0' encoding='utf-8'?>\n"
+            f'<graphml xmlns="{NS}" xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
+            f'xsi:schemaLocation="{NS} {NS}/1.0/graphml.xsd">\n'
+        )
+        for kid, domain, name, gtype in self.decl:
+            yield (
+                f'<key id="{kid}" for="{domain}" attr.name={quoteattr(xml_text(name))} '
+                f'attr.type="{gtype}" />\n'
+            )
+        yield '<graph edgedefault="directed">\n'
+        yield self._data("graph", "", self.g.graph) + "\n"
+        quoted = {}
+        kind_key = self.ids["node", "kind"]
+        for n, d in self.g.nodes(data=True):
+            quoted[n] = q = quoteattr(n)
+            kind = d.get("kind")
+            if kind != "state" and kind != "object":
+                raise ValueError(f"node {n!r}: kind {kind!r} is neither state nor object")
+            yield (
+                f'<node id={q}><data key="{kind_key}">{kind}</data>'
+                f"{self._data(kind, repr(n), d)}</node>\n"
+            )
+        quoted_keys: dict[str, str] = {}
+        for u, v, k, d in self.g.edges(keys=True, data=True):
+            where = "sees" if k == SEES else "transition"
+            qk = quoted_keys.get(k)
+            if qk is None:
+                qk = quoted_keys[k] = quoteattr(str(k))
+            yield (
+                f"<edge id={qk} source={quoted[u]} target={quoted[v]}>"
+                f"{self._data(where, f'{u!r}->{v!r}', d)}</edge>\n"
+            )
+        yield "</graph>\n</graphml>\n"
+
+    def chunks(self) -> Iterator[str]:
+        """:meth:`lines` joined into pieces of about :data:`_CHUNK` characters."""
+        out, size = [], 0
+        for line in self.lines():
+            out.append(line)
+            size += len(line)
+            if size > _CHUNK:
+                yield "".join(out)
+                out, size = [], 0
+        yield "".join(out)
 
 
 def to_graphml(model: AbstractModel) -> bytes:
     """The model as a GraphML document."""
-    out = [
-        "<?xml version='1.0' encoding='utf-8'?>\n"
-        f'<graphml xmlns="{_NS}" xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
-        f'xsi:schemaLocation="{_NS} {_NS}/1.0/graphml.xsd">\n'
-    ]
-    for scope, spec in (("graph", _GRAPH), ("node", _NODE), ("edge", _EDGE)):
-        for name, typ in spec.items():
-            out.append(
-                f'<key id="{_KEY_ID[scope, name]}" for="{scope}" attr.name="{name}" '
-                f'attr.type="{typ}" />\n'
-            )
-    out.append('<graph edgedefault="directed">\n')
-    out.append(_data("graph", {k: model.graph.graph[k] for k in _GRAPH}))
-    out.append("\n")
-    for n, d in model.graph.nodes(data=True):
-        if d["kind"] == "state":
-            d = dict(d, features=encode_features(d["features"]))
-        out.append(f"<node id={quoteattr(n)}>{_data('node', d)}</node>\n")
-    for u, v, k, d in model.graph.edges(keys=True, data=True):
-        if k == SEES:
-            attrs = {
-                "bbox": _numbers(d["bbox"]),
-                "distance": d["distance"],
-                "pixels": d["pixels"],
-                "obs": _numbers(d["obs"]),
-            }
-        else:
-            attrs = {"count": d["count"]}
-        out.append(
-            f"<edge id={quoteattr(k)} source={quoteattr(u)} target={quoteattr(v)}>"
-            f"{_data('edge', attrs)}</edge>\n"
-        )
-    out.append("</graph>\n</graphml>\n")
-    return "".join(out).encode("utf-8")
+    with paused_gc():
+        return "".join(_Writer(model).chunks()).encode("utf-8")
 
 
 def write_model(model: AbstractModel, path: str | os.PathLike[str]) -> None:
-    """Save ``model`` to ``path`` (GraphML), replacing any previous file atomically."""
-    data = to_graphml(model)
-    with atomic_open(path, "wb") as fh:
-        fh.write(data)
+    """Save ``model`` to ``path`` (GraphML), replacing any previous file atomically.
 
-
-def _bool(text: str) -> bool:
-    return text.strip().lower() in ("true", "1")
-
-
-def parse_graphml(path: str) -> tuple[nx.MultiDiGraph, dict[tuple[str, str], str]]:
-    """Read a single-graph GraphML file into a ``MultiDiGraph`` (string ids, edge id = key).
-
-    Returns the graph and the declared type of each ``(scope, attribute)``. Raises
-    ``ValueError`` for XML that is not such a GraphML file.
+    A value GraphML cannot hold (an attribute of another type, a control character) raises
+    ``ValueError`` naming it, and the previous file stays as it was.
     """
-    parser = etree.XMLParser(resolve_entities=False, no_network=True, collect_ids=False)
-    root = etree.parse(path, parser).getroot()
-    if root.tag != f"{{{_NS}}}graphml":
-        raise ValueError(f"root element is {etree.QName(root).localname!r}, not graphml")
-    keys: dict[str, tuple[str, object]] = {}
-    types: dict[tuple[str, str], str] = {}
-    graph_el = None
-    for el in root:
-        if el.tag == f"{{{_NS}}}key":
-            typ = el.get("attr.type", "string")
-            if typ not in _PY:
-                raise ValueError(f"key {el.get('id')!r} has unsupported type {typ!r}")
-            name = el.get("attr.name")
-            keys[el.get("id")] = (name, _bool if typ == "boolean" else _PY[typ])
-            types[(el.get("for", "all"), name)] = typ
-        elif el.tag == f"{{{_NS}}}graph":
-            if graph_el is not None:
-                raise ValueError("more than one graph in the file")
-            graph_el = el
-    if graph_el is None:
-        raise ValueError("no graph element")
-    data_tag, node_tag, edge_tag = (f"{{{_NS}}}{t}" for t in ("data", "node", "edge"))
-
-    def data_of(el) -> dict:
-        out = {}
-        for d in el:
-            if d.tag == data_tag:
-                try:
-                    name, conv = keys[d.get("key")]
-                except KeyError:
-                    raise ValueError(f"data refers to undeclared key {d.get('key')!r}") from None
-                out[name] = conv(d.text or "")
-        return out
-
-    g = nx.MultiDiGraph()
-    g.graph.update(data_of(graph_el))
-    nodes, adj = g._node, g._adj
-    for el in graph_el:
-        if el.tag == node_tag:
-            g.add_node(el.get("id"), **data_of(el))
-        elif el.tag == edge_tag:
-            u, v = el.get("source"), el.get("target")
-            if u not in nodes or v not in nodes:
-                raise ValueError(f"edge {u!r}->{v!r} refers to a missing node")
-            if el.get("id") in adj[u].get(v, ()):
-                raise ValueError(f"edge {u!r}->{v!r} with key {el.get('id')!r} appears twice")
-            g.add_edge(u, v, key=el.get("id"), **data_of(el))
-    return g, types
-
-
-def _check_types(path, types: dict[tuple[str, str], str]) -> None:
-    """Declared attribute types must be the schema's (a float may be declared as an integer)."""
-    for scope, spec in (("graph", _GRAPH), ("node", _NODE), ("edge", _EDGE)):
-        for name, want in spec.items():
-            got = types.get((scope, name), types.get(("all", name)))
-            if got is None or _PY[got] is _PY[want] or (_PY[want] is float and _PY[got] is int):
-                continue
-            raise ModelFileError(path, f"{scope} attribute {name!r} is declared {got}, not {want}")
-
-
-def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
-    values = tuple(map(float, text.split()))
-    if len(values) != n:
-        raise ValueError(f"{what} has {len(values)} numbers, expected {n}")
-    return values
-
-
-def read_model(path: str | os.PathLike[str]) -> AbstractModel:
-    """Load a model saved by :func:`write_model`, validating it.
-
-    Raises :class:`~kgnav.errors.ModelFileError` (missing, unreadable, not GraphML, not a kgnav
-    model, malformed) or :class:`~kgnav.errors.SchemaVersionError` naming the file and the reason.
-    """
-    path = os.fspath(path)
-    if not os.path.exists(path):
-        raise ModelFileError(path, "no such file")
-    try:
-        g, types = parse_graphml(path)
-    except etree.XMLSyntaxError as exc:
-        raise ModelFileError(path, f"not valid XML ({exc.msg})") from None
-    except (ValueError, TypeError) as exc:
-        raise ModelFileError(path, f"not a readable GraphML file ({exc})") from None
-    except OSError as exc:
-        raise ModelFileError(path, f"cannot read ({exc.strerror or exc})") from None
-    if "kgnav_schema" not in g.graph:
-        raise ModelFileError(path, "not a kgnav Abstract Model (no kgnav_schema attribute)")
-    version = g.graph["kgnav_schema"]
-    if version != SCHEMA_VERSION:
-        raise SchemaVersionError(
-            path, f"schema version {version!r}, this kgnav reads version {SCHEMA_VERSION}"
-        )
-    _check_types(path, types)
-    missing = set(_GRAPH) - set(g.graph)
-    if missing:
-        raise ModelFileError(path, f"graph: missing attribute {sorted(missing)[0]!r}")
-    for name in ("pose_tol", "angle_tol", "feature_tol", "object_radius"):
-        g.graph[name] = float(g.graph[name])
-    dim = g.graph["feature_dim"]
-    if g.graph["feature_dtype"] != "float32" or dim <= 0:
-        raise ModelFileError(path, f"unsupported features {g.graph['feature_dtype']}[{dim}]")
-    classes = set(g.graph["classes"].split(","))
-    for n, d in g.nodes(data=True):
-        kind = d.get("kind")
-        if kind not in ("state", "object"):
-            raise ModelFileError(path, f"node {n!r}: unknown kind {kind!r}")
-        missing = _REQUIRED[kind] - d.keys()
-        if missing:
-            raise ModelFileError(path, f"node {n!r}: missing attribute {sorted(missing)[0]!r}")
-        for axis in ("x", "y", "theta") if kind == "state" else ("x", "y", "z"):
-            d[axis] = float(d[axis])
-        if kind == "state":
-            try:
-                d["features"] = decode_features(d["features"], dim)
-            except (ValueError, TypeError) as exc:
-                raise ModelFileError(path, f"state {n!r}: bad feature payload ({exc})") from None
-        elif d["cls"] not in classes:
-            raise ModelFileError(
-                path, f"object {n!r}: class {d['cls']!r} not in the model's classes"
-            )
-    for u, v, k, d in g.edges(keys=True, data=True):
-        kind = "sees" if k == SEES else "transition"
-        missing = _REQUIRED[kind] - d.keys()
-        if missing:
-            raise ModelFileError(
-                path, f"edge {u!r}->{v!r}: missing attribute {sorted(missing)[0]!r}"
-            )
-        want = ("state", "object") if kind == "sees" else ("state", "state")
-        if (g.nodes[u]["kind"], g.nodes[v]["kind"]) != want:
-            raise ModelFileError(path, f"edge {u!r}->{v!r}: a {kind} edge must join {want}")
-        d["kind"] = kind
-        if kind == "sees":
-            try:
-                d["bbox"] = _floats(d["bbox"], 4, "bbox")
-                d["obs"] = _floats(d["obs"], 3, "obs")
-            except ValueError as exc:
-                raise ModelFileError(path, f"edge {u!r}->{v!r}: {exc}") from None
-            d["distance"] = float(d["distance"])
-    return AbstractModel.from_graph(g)
+    with paused_gc():
+        chunks = _Writer(model).chunks()
+        with atomic_open(path, "wb") as fh:
+            for chunk in chunks:
+                fh.write(chunk.encode("utf-8"))

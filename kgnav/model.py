@@ -62,8 +62,13 @@ ACTIONS: tuple[str, ...] = ("stop", "move_forward", "turn_left", "turn_right")
 
 SEES = "sees"
 
-#: Model ids name files in a store and appear in provenance: keep them plain.
-SAFE_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,127}$")
+#: Model ids name files in a store and appear in provenance: keep them plain. (``\Z``, not ``$``:
+#: ``$`` also matches before a final newline.)
+SAFE_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,127}\Z")
+
+#: Largest coordinate (metres, absolute) a model holds: far beyond any building, small enough
+#: that grid cells and distances stay finite.
+MAX_COORD = 1e6
 
 
 @dataclass(frozen=True)
@@ -165,6 +170,10 @@ class AbstractModel:
         classes = tuple(classes)
         if not classes or any((not c) or ("," in c) for c in classes):
             raise ValueError("classes must be non-empty names without commas")
+        for name, tol in (("pose_tol", pose_tol), ("angle_tol", angle_tol),
+                          ("feature_tol", feature_tol), ("object_radius", object_radius)):
+            if not 0.0 <= float(tol) <= MAX_COORD:
+                raise ValueError(f"{name} must be a number in [0, {MAX_COORD:g}], got {tol!r}")
         self.graph = nx.MultiDiGraph()
         self.graph.graph.update(
             kgnav_schema=SCHEMA_VERSION,
@@ -315,8 +324,18 @@ class AbstractModel:
 
     @staticmethod
     def _grid(x: float, y: float, size: float) -> tuple[int, int]:
-        """Grid cell of side ``size``: neighbours within ``size`` lie in the 3×3 block around it."""
-        return (math.floor(x / size), math.floor(y / size)) if size > 0 else (0, 0)
+        """Grid cell of side ``size``: neighbours within ``size`` lie in the 3×3 block around it.
+
+        Below a nanometre everything shares one cell, and cell numbers are clamped, so the index
+        never meets an infinite quotient; neither changes which neighbours a search finds.
+        """
+        if not size >= 1e-9:
+            return (0, 0)
+        qx = min(max(x / size, -1e300), 1e300)
+        qy = min(max(y / size, -1e300), 1e300)
+        if qx != qx or qy != qy:  # NaN: only a caller bypassing add_state's checks gets here
+            raise ValueError(f"non-finite position ({x}, {y})")
+        return (math.floor(qx), math.floor(qy))
 
     def _cell(self, x: float, y: float) -> tuple[int, int]:
         return self._grid(x, y, self._tol("pose_tol"))
@@ -390,12 +409,23 @@ class AbstractModel:
         f = self._validate_features(features)
         r = self._validate_ranges(ranges)
         pose = se2.as_pose(pose)
+        if not all(abs(v) <= MAX_COORD for v in pose):
+            raise ValueError(f"pose must be finite, within {MAX_COORD:g} m: got {pose}")
         detections = list(detections)
         for det in detections:
             self.check_class(det.cls)
             if len(det.position) != 3 or len(det.bbox) != 4:
                 raise ValueError(
                     f"a {det.cls} detection needs position (x, y, z) and bbox (u0, v0, u1, v1)"
+                )
+            if not (
+                all(abs(float(v)) <= MAX_COORD for v in (*det.position, *det.bbox))
+                and 0.0 <= float(det.distance) <= MAX_COORD
+                and int(det.pixels) >= 0
+            ):
+                raise ValueError(
+                    f"a {det.cls} detection needs finite position and bbox within {MAX_COORD:g}, "
+                    f"distance >= 0 and pixels >= 0, got {det}"
                 )
         existing = self.find_state(pose, f)
         if existing is not None:
@@ -608,8 +638,10 @@ class AbstractModel:
         """Record ``delta(src, action) = dst``; repeated transitions increase ``count``."""
         self._check_state(src)
         self._check_state(dst)
-        if not isinstance(action, str) or not action:
-            raise ValueError(f"action must be a non-empty string, got {action!r}")
+        if action not in ACTIONS:
+            raise ValueError(f"action must be one of {', '.join(ACTIONS)}, got {action!r}")
+        if int(count) < 1:
+            raise ValueError(f"a transition count must be >= 1, got {count!r}")
         if self.graph.has_edge(src, dst, action):
             self.graph.edges[src, dst, action]["count"] += int(count)
         else:
@@ -642,11 +674,14 @@ class AbstractModel:
         write_model(self, path)
 
     @classmethod
-    def load(cls, path: str | os.PathLike[str]) -> AbstractModel:
-        """Read a model written by :meth:`save`; raises :class:`kgnav.errors.ModelFileError`."""
+    def load(cls, path: str | os.PathLike[str], *, max_bytes: int | None = None) -> AbstractModel:
+        """Read a model written by :meth:`save`; raises :class:`kgnav.errors.ModelFileError`.
+
+        ``max_bytes`` bounds the file size (see :func:`kgnav.graphml.read_model`).
+        """
         from kgnav.graphml import read_model
 
-        return read_model(path)
+        return read_model(path, max_bytes=max_bytes)
 
     @classmethod
     def from_graph(cls, graph: nx.MultiDiGraph) -> AbstractModel:

@@ -124,3 +124,70 @@ def test_failed_merge_leaves_output_untouched(files):
     out.write_text("precious")
     res = run("merge", pa, pb, "-o", out, "--anchor", "s1:s9999")
     assert res.returncode == 1 and out.read_text() == "precious"
+
+
+def test_printed_text_is_text(cli, tmp_path):
+    """Rich markup in a class or file name is printed as it is; control characters escaped."""
+    import numpy as np
+
+    from kgnav import AbstractModel, Detection
+
+    m = AbstractModel(feature_dim=2, model_id="m", classes=("[/bold]", "[red]x[/red]"),
+                      extractor="ext\nline")
+    m.add_state(np.ones(2), (0, 0, 0), [Detection("[/bold]", (1.0, 0.0, 0.0))])
+    m.add_state(np.ones(2), (1, 0, 0), [Detection("[red]x[/red]", (1.0, 0.0, 0.0))])
+    path = tmp_path / "[bold]odd\x1b[31m\nname.graphml"
+    m.save(path)
+    code, out, err = cli("inspect", path)
+    assert code == 0, err
+    assert "[bold]odd\\x1b[31m\\nname.graphml" in out and "\x1b" not in out
+    assert "[/bold]" in out and "[red]x[/red]" in out and "ext\\nline" in out
+    code, out, err = cli("query", path, "--goal", "[/bold]")
+    assert code == 0 and "object o0 at" in out
+    code, _, err = cli("query", path, "--goal", "[bold]nope\n")
+    assert code == 1 and err.count("\n") == 1 and "'[bold]nope\\n'" in err
+
+
+def test_store_check(cli, tmp_path, files):
+    from kgnav import ModelStore
+
+    _, a, _, _, _ = files
+    store_dir = tmp_path / "mem"
+    ModelStore(store_dir).save(a)
+    code, out, err = cli("store", "check", store_dir)
+    assert code == 0 and out.strip().endswith("1 models load, 0 problems"), err
+    (store_dir / "broken.graphml").write_text("<graphml")
+    (store_dir / "d.graphml").mkdir()
+    (store_dir / ".x.graphml.abc.tmp").write_text("partial")
+    before = sorted(p.name for p in store_dir.iterdir())
+    code, out, err = cli("store", "check", store_dir, "--json")
+    assert code == 1
+    report = json.loads(out)
+    assert report["models"] == [a.model_id]
+    assert sorted(p["kind"] for p in report["problems"]) == ["entry", "model", "temp"]
+    assert sorted(p.name for p in store_dir.iterdir()) == before  # nothing changed
+    code, out, err = cli("store", "check", store_dir)
+    assert code == 1 and len(out.strip().splitlines()) == 4 and "3 problems" in out
+    code, out, _ = cli("store", "ls", store_dir)
+    assert code == 0
+
+
+def test_hostile_inputs_get_one_line(cli, tmp_path):
+    import os
+
+    fifo = tmp_path / "pipe.graphml"
+    os.mkfifo(fifo)  # inspect must not wait for a writer
+    loop = tmp_path / "loop.graphml"
+    loop.symlink_to(loop)
+    for path, needle in [(fifo, "not a regular file (a FIFO"), (loop, "symbolic link loop")]:
+        code, _, err = cli("inspect", path)
+        assert code == 1 and err.count("\n") == 1 and needle in err, err
+
+
+def test_unwritable_output_is_one_line(cli, files, tmp_path):
+    _, _, _, pa, pb = files
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("x")
+    code, _, err = cli("merge", pa, pb, "-o", blocker / "m.graphml")
+    assert code == 1 and err.count("\n") == 1 and err.startswith("kgnav: error: "), err
+    assert "not-a-dir" in err and "Traceback" not in err

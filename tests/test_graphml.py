@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 
-from kgnav import AbstractModel, ModelFileError, SchemaVersionError
+from kgnav import AbstractModel, Detection, ModelFileError, SchemaVersionError
 from kgnav import graphml as gml
 from tests.strategies import models
 
@@ -52,13 +52,10 @@ def test_failed_save_keeps_previous_file(tmp_path, tiny, monkeypatch):
     tiny.save(path)
     before = path.read_bytes()
     bigger = tiny.copy()
-    bigger.add_state(np.ones(4), (5, 5, 0))
-
-    def boom(model):
-        raise OSError("disk full")
-
-    monkeypatch.setattr(gml, "to_graphml", boom)
-    with pytest.raises(OSError):
+    sid = bigger.add_state(np.ones(4), (5, 5, 0))
+    bigger.graph.nodes[sid]["features"] = "not a vector"  # fails after earlier chunks are out
+    monkeypatch.setattr(gml, "_CHUNK", 10)
+    with pytest.raises(ValueError, match=f"state '{sid}': attribute 'features'"):
         bigger.save(path)
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["t.graphml"]  # no temp file left behind
@@ -129,7 +126,8 @@ def test_bad_feature_payload(tmp_path, tiny):
     text = path.read_text()
     good = gml.encode_features(tiny.features("s1"))
     path.write_text(text.replace(good, gml.encode_features(np.ones(3, np.float32))))
-    with pytest.raises(ModelFileError, match="state 's1': bad feature payload"):
+    with pytest.raises(ModelFileError,
+                       match="node 's1' .line [0-9]+.: attribute 'features': 3 values, expected 4"):
         AbstractModel.load(path)
 
 
@@ -137,7 +135,7 @@ def test_missing_attribute(tmp_path, tiny):
     del tiny.graph.nodes["s1"]["step"]
     path = tmp_path / "t.graphml"
     tiny.save(path)
-    with pytest.raises(ModelFileError, match="node 's1': missing attribute 'step'"):
+    with pytest.raises(ModelFileError, match="node 's1' .line [0-9]+.: missing attribute 'step'"):
         AbstractModel.load(path)
 
 
@@ -145,5 +143,61 @@ def test_edge_between_wrong_kinds(tmp_path, tiny):
     tiny.graph.add_edge("s0", "o0", key="move_forward", kind="transition", count=1)
     path = tmp_path / "t.graphml"
     tiny.save(path)
-    with pytest.raises(ModelFileError, match="transition edge must join"):
+    with pytest.raises(ModelFileError, match="edge 's0'->'o0' .'move_forward'. .line [0-9]+.: "
+                       "a transition edge joins state -> state"):
         AbstractModel.load(path)
+
+
+def test_the_api_refuses_what_a_file_may_not_hold():
+    """So that every model the API builds saves and loads back."""
+    m = AbstractModel(feature_dim=2, model_id="api")
+    s = m.add_state(np.ones(2), (0, 0, 0))
+    with pytest.raises(ValueError, match="action must be one of"):
+        m.add_transition(s, "jump", s)
+    with pytest.raises(ValueError, match="count must be >= 1"):
+        m.add_transition(s, "stop", s, count=0)
+    with pytest.raises(ValueError):
+        m.add_state(np.ones(2), (float("nan"), 0, 0))
+    with pytest.raises(ValueError, match="pose must be finite"):
+        m.add_state(np.ones(2), np.array([[1, 0, np.inf], [0, 1, 0], [0, 0, 1]]))
+    with pytest.raises(ValueError, match="detection needs finite position"):
+        m.add_state(np.ones(2), (1, 0, 0), [Detection("chair", (np.inf, 0.0, 0.0))])
+    with pytest.raises(ValueError, match=r"pose_tol must be a number in \[0, 1e\+06\]"):
+        AbstractModel(feature_dim=2, pose_tol=-1)
+    tiny_tol = AbstractModel(feature_dim=2, model_id="t", pose_tol=5e-324)  # grid: one cell
+    a = tiny_tol.add_state(np.ones(2), (1e5, -1e5, 0))
+    assert tiny_tol.add_state(np.ones(2), (1e5, -1e5, 0)) == a
+
+
+def test_unwritable_value_names_itself_and_keeps_the_file(tmp_path, tiny):
+    path = tmp_path / "t.graphml"
+    tiny.save(path)
+    before = path.read_bytes()
+    tiny.graph.nodes["s0"]["note"] = [1, 2]
+    with pytest.raises(ValueError, match="node 's0': attribute 'note' holds a list"):
+        tiny.save(path)
+    tiny.graph.nodes["s0"]["note"] = "bell\x07"
+    with pytest.raises(ValueError, match="which XML cannot store"):
+        tiny.save(path)
+    assert path.read_bytes() == before and len(list(tmp_path.iterdir())) == 1
+
+
+def test_other_attributes_round_trip_typed(tmp_path, tiny):
+    tiny.graph.graph.update(site="lab 3 & <b>", trusted=True, floors=2, scale=0.5)
+    tiny.graph.nodes["o0"]["label"] = "red chair\r\n"
+    tiny.graph.edges["s0", "s1", "move_forward"]["ms"] = 12
+    path = tmp_path / "t.graphml"
+    tiny.save(path)
+    back = AbstractModel.load(path)
+    assert back == tiny
+    g = nx.read_graphml(path, force_multigraph=True)
+    assert g.graph["trusted"] is True and g.graph["site"] == "lab 3 & <b>"
+    assert g.nodes["o0"]["label"] == "red chair\r\n"
+
+
+def test_saved_files_are_read_by_the_fast_reader(tmp_path, episode_model):
+    from kgnav import graphml_read as gr
+
+    path = tmp_path / "e.graphml"
+    episode_model.save(path)
+    assert gr._read_canonical(str(path), 1 << 30) == episode_model

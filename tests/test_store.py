@@ -1,4 +1,5 @@
 import multiprocessing as mp
+import os
 
 import networkx as nx
 import numpy as np
@@ -104,3 +105,64 @@ def test_update_creates_when_missing(tmp_path):
     assert store.load("fresh") == made
     with pytest.raises(StoreError, match="returned model 'other'"):
         store.update("fresh", lambda cur: _model("other"))
+
+
+def test_entries_that_are_not_files_are_reported(tmp_path):
+    store = ModelStore(tmp_path)
+    store.save(_model("good"))
+    (tmp_path / "dir.graphml").mkdir()
+    (tmp_path / "dangling.graphml").symlink_to(tmp_path / "gone.graphml")
+    (tmp_path / "loop.graphml").symlink_to(tmp_path / "loop.graphml")
+    os.mkfifo(tmp_path / "fifo.graphml")
+    (tmp_path / "link.graphml").symlink_to(tmp_path / "good.graphml")  # a link to a model: fine
+    (tmp_path / "bad name.graphml").write_text("x")
+    assert store.ids() == ["bad name", "good", "link"]
+    models, problems = store.load_all()
+    assert list(models) == ["good"]
+    reasons = {os.path.basename(p.path): (p.kind, p.reason) for p in problems}
+    assert reasons == {
+        "dangling.graphml": ("entry", f"dangling symbolic link (to {tmp_path / 'gone.graphml'})"),
+        "dir.graphml": ("entry", "not a regular file (a directory)"),
+        "fifo.graphml": ("entry", "not a regular file (a FIFO (named pipe))"),
+        "loop.graphml": ("entry", "symbolic link loop"),
+        "bad name.graphml": ("model", "invalid model id 'bad name': use letters, digits and "
+                             "_ . + - (max 128)"),
+        "link.graphml": ("model", "holds model 'good', but its file name says 'link'"),
+    }
+    good, problems_checked = store.check()
+    assert good == ["good"] and problems_checked == problems
+    with pytest.raises(ModelFileError, match="fifo.graphml: not a regular file"):
+        store.load("fifo")  # never blocks waiting for a writer
+
+
+@pytest.mark.parametrize("bad", ["abc\n", "a\nb", "..", "x" * 129])
+def test_ids_with_a_newline_or_too_long_rejected(tmp_path, bad):
+    with pytest.raises(StoreError, match="invalid model id"):
+        ModelStore(tmp_path).path_of(bad)
+    with pytest.raises(ValueError):
+        AbstractModel(feature_dim=2, model_id=bad)
+
+
+def test_size_limit(tmp_path, monkeypatch):
+    store = ModelStore(tmp_path, max_bytes=1000)
+    ModelStore(tmp_path).save(_model("big", n=4, dim=64))
+    with pytest.raises(ModelFileError, match=r"big.graphml: [0-9.]+ kB, over the 1.0 kB limit"):
+        store.load("big")
+    monkeypatch.setenv("KGNAV_MAX_MODEL_BYTES", "1K")
+    with pytest.raises(ModelFileError, match="over the 1.0 kB limit"):
+        ModelStore(tmp_path).load("big")
+    monkeypatch.setenv("KGNAV_MAX_MODEL_BYTES", "1M")
+    assert ModelStore(tmp_path).load("big").n_states == 4
+
+
+def test_write_problems_are_store_errors(tmp_path):
+    (tmp_path / "m.graphml").mkdir()  # a directory where the model file should be
+    store = ModelStore(tmp_path)
+    with pytest.raises(StoreError, match="m.graphml: cannot write"):
+        store.save(_model("m"))
+    with pytest.raises(ModelFileError, match="not a regular file .a directory."):
+        store.update("m", lambda cur: _model("m"))
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(StoreError, match="cannot lock"):
+        ModelStore(blocker / "sub").save(_model("m"))

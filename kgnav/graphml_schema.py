@@ -1,0 +1,411 @@
+"""What an Abstract Model file holds: the GraphML schema as a table, and the codec of each value.
+
+:data:`ATTRIBUTES` has one row per attribute: where it lives (the graph, a state or object node, a
+transition or sees edge), its codec — GraphML type, parsing from text and formatting back, range
+and finiteness — whether it is required, and the schema version that introduced it. Reading
+(:mod:`kgnav.graphml_read`) checks every value of a file against the rows of the file's version,
+writing (:mod:`kgnav.graphml`) formats each with its codec, so adding an attribute is adding a row.
+
+Schema versions this release reads are :data:`READABLE_VERSIONS`; :func:`upgrade` is where a model
+read from an older version gets what later versions added.
+
+>>> Double(0.0, 5.0).parse("2.5", None)
+2.5
+>>> Double(0.0, 5.0).parse("nan", None)
+Traceback (most recent call last):
+...
+ValueError: not a finite number (nan)
+>>> sorted(schema(1)["sees"])
+['bbox', 'distance', 'obs', 'pixels']
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import json
+import math
+import re
+import sys
+from dataclasses import dataclass
+from functools import cache
+from xml.sax.saxutils import escape
+
+import networkx as nx
+import numpy as np
+
+from kgnav.model import MAX_COORD, SAFE_ID, SCHEMA_VERSION
+
+_DTYPE = np.dtype("<f4")
+_BIG_ENDIAN = sys.byteorder != "little"
+INT64 = (-(2**63), 2**63 - 1)
+
+#: Schema versions this release reads. Version-1 files are accepted as they are; when a version
+#: adds attributes, :func:`upgrade` is where an older file's model gets them.
+READABLE_VERSIONS = (1,)
+
+
+# ---------------------------------------------------------------------------------------- codecs
+# A codec turns the text of one <data> into the in-memory value (raising ValueError with the
+# reason) and back. ``gtype`` is the GraphML attr.type written in the <key>.
+
+
+def show(text: str, limit: int = 40) -> str:
+    return repr(text if len(text) <= limit else text[: limit - 3] + "...")
+
+
+def _range_error(v, lo, hi, unit: str = "") -> ValueError:
+    if isinstance(v, float) and not math.isfinite(v):
+        return ValueError(f"not a finite number ({v!r})")
+    if hi == INT64[1] or hi == math.inf:
+        return ValueError(f"{v!r} is below the minimum {lo:g}{unit}")
+    if lo == INT64[0] or lo == -math.inf:
+        return ValueError(f"{v!r} is above the maximum {hi:g}{unit}")
+    return ValueError(f"{v!r} is outside [{lo:g}, {hi:g}]{unit}")
+
+
+@dataclass(frozen=True)
+class Long:
+    """A 64-bit integer in ``[lo, hi]``."""
+
+    lo: int = INT64[0]
+    hi: int = INT64[1]
+    gtype = "long"
+
+    def parse(self, text: str, ctx) -> int:
+        # int() alone would also take "1_000" and non-ASCII digits
+        if text.isascii() and "_" not in text:
+            try:
+                v = int(text)
+            except ValueError:
+                pass
+            else:
+                if self.lo <= v <= self.hi:
+                    return v
+                raise _range_error(v, self.lo, self.hi)
+        raise ValueError(f"not an integer ({show(text)})")
+
+    def format(self, v) -> str:
+        return str(int(v))
+
+
+@dataclass(frozen=True)
+class Double:
+    """A finite float in ``[lo, hi]``."""
+
+    lo: float = -MAX_COORD
+    hi: float = MAX_COORD
+    unit: str = ""
+    gtype = "double"
+
+    def parse(self, text: str, ctx) -> float:
+        if text.isascii() and "_" not in text:
+            try:
+                v = float(text)
+            except ValueError:
+                pass
+            else:
+                if self.lo <= v <= self.hi:  # False for NaN too
+                    return v
+                raise _range_error(v, self.lo, self.hi, self.unit)
+        raise ValueError(f"not a number ({show(text)})")
+
+    def format(self, v) -> str:
+        return repr(float(v))
+
+
+@dataclass(frozen=True)
+class Numbers:
+    """``n`` space-separated finite floats, each within ``[-bound, bound]``; held as a tuple."""
+
+    n: int
+    bound: float = MAX_COORD
+    gtype = "string"
+
+    def parse(self, text: str, ctx) -> tuple[float, ...]:
+        parts = text.split()
+        if len(parts) != self.n:
+            raise ValueError(f"{len(parts)} numbers, expected {self.n}")
+        if text.isascii() and "_" not in text:
+            try:
+                values = tuple(map(float, parts))
+            except ValueError:
+                pass
+            else:
+                total = sum(values)  # NaN or inf anywhere makes it NaN or inf
+                if total - total == 0.0 and max(map(abs, values)) <= self.bound:
+                    return values
+                bad = next(v for v in values if not -self.bound <= v <= self.bound)
+                raise _range_error(bad, -self.bound, self.bound)
+        raise ValueError(f"not numbers ({show(text)})")
+
+    def __post_init__(self):
+        object.__setattr__(self, "_template", " ".join(["%r"] * self.n))
+
+    def format(self, v) -> str:
+        if len(v) != self.n:
+            raise ValueError(f"{len(v)} numbers, expected {self.n}")
+        return self._template % tuple(map(float, v))
+
+
+class _String:
+    """A codec whose value is held as its text."""
+
+    gtype = "string"
+
+    def format(self, v) -> str:
+        return xml_text(str(v))
+
+
+@dataclass(frozen=True)
+class Text(_String):
+    """A string, optionally matching ``pattern`` (described by ``what``) or one of ``choices``."""
+
+    pattern: re.Pattern | None = None
+    what: str = ""
+    choices: tuple[str, ...] = ()
+
+    def parse(self, text: str, ctx) -> str:
+        if self.pattern is not None and not self.pattern.fullmatch(text):
+            raise ValueError(f"{show(text)} is not {self.what}")
+        if self.choices and text not in self.choices:
+            raise ValueError(f"{show(text)} is not one of {', '.join(self.choices)}")
+        return text
+
+
+@dataclass(frozen=True)
+class JsonList(_String):
+    """A JSON list of integers (``item="int"``) or model ids (``item="id"``); held as the text."""
+
+    item: str
+
+    def parse(self, text: str, ctx) -> str:
+        try:
+            value = json.loads(text)
+        except (ValueError, RecursionError):
+            raise ValueError(f"not JSON ({show(text)})") from None
+        if not isinstance(value, list):
+            raise ValueError(f"not a JSON list ({show(text)})")
+        for x in value:
+            ok = (
+                type(x) is int and INT64[0] <= x <= INT64[1]
+                if self.item == "int"
+                else isinstance(x, str) and SAFE_ID.match(x)
+            )
+            if not ok:
+                want = "an integer" if self.item == "int" else "a model id"
+                raise ValueError(f"item {show(json.dumps(x))} is not {want}")
+        return text
+
+
+@dataclass(frozen=True)
+class Classes(_String):
+    """Comma-separated, non-empty class names."""
+
+    def parse(self, text: str, ctx) -> str:
+        if not text or any(not c for c in text.split(",")):
+            raise ValueError(f"{show(text)} is not a comma-separated list of class names")
+        return text
+
+
+@dataclass(frozen=True)
+class Features:
+    """Base64 of ``feature_dim`` little-endian float32, all finite; held as a read-only array."""
+
+    gtype = "string"
+
+    def parse(self, text: str, ctx) -> np.ndarray:
+        return decode_features(text, ctx.dim)
+
+    def format(self, v) -> str:
+        return encode_features(v)
+
+
+# ---------------------------------------------------------------------------------------- schema
+
+
+@dataclass(frozen=True)
+class Attr:
+    """One attribute of the schema: where it lives, how it is coded, since which version."""
+
+    where: str  # "graph", "state", "object", "transition" or "sees"
+    name: str
+    codec: object
+    required: bool = True
+    since: int = 1
+
+
+_ID = Text(SAFE_ID, "a model id (letters, digits, _ . + -; at most 128)")
+_ORIGIN = Text(
+    re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,127}/[so][0-9]+(?: [A-Za-z0-9][A-Za-z0-9_.+-]{0,127}"
+               r"/[so][0-9]+)*"),
+    "a list of model_id/node_id",
+)
+_TOL = Double(0.0, MAX_COORD)
+
+#: The schema. Adding an attribute is adding a row (with ``since`` = the version it comes with).
+ATTRIBUTES: tuple[Attr, ...] = (
+    Attr("graph", "kgnav_schema", Long(1)),
+    Attr("graph", "model_id", _ID),
+    Attr("graph", "feature_dim", Long(1, 1 << 20)),
+    Attr("graph", "feature_dtype", Text(choices=("float32",))),
+    Attr("graph", "extractor", Text()),
+    Attr("graph", "classes", Classes()),
+    Attr("graph", "episodes", JsonList("int")),
+    Attr("graph", "merged_from", JsonList("id")),
+    Attr("graph", "pose_tol", _TOL),
+    Attr("graph", "angle_tol", _TOL),
+    Attr("graph", "feature_tol", _TOL),
+    Attr("graph", "object_radius", _TOL),
+    Attr("state", "x", Double(unit=" m")),
+    Attr("state", "y", Double(unit=" m")),
+    Attr("state", "theta", Double(-math.pi, math.pi, " rad")),
+    Attr("state", "episode", Long()),
+    Attr("state", "step", Long()),
+    Attr("state", "features", Features()),
+    Attr("state", "origin", _ORIGIN),
+    Attr("object", "cls", Text()),
+    Attr("object", "x", Double(unit=" m")),
+    Attr("object", "y", Double(unit=" m")),
+    Attr("object", "z", Double(unit=" m")),
+    Attr("object", "n_obs", Long(1)),
+    Attr("object", "n_views", Long(0)),
+    Attr("object", "origin", _ORIGIN),
+    Attr("transition", "count", Long(1)),
+    Attr("sees", "bbox", Numbers(4)),
+    Attr("sees", "distance", Double(0.0, MAX_COORD, " m")),
+    Attr("sees", "pixels", Long(0)),
+    Attr("sees", "obs", Numbers(3)),
+)
+
+DOMAIN = {
+    "graph": "graph", "state": "node", "object": "node", "transition": "edge", "sees": "edge"
+}
+NODE_ID = {"state": re.compile(r"s[0-9]{1,18}"), "object": re.compile(r"o[0-9]{1,18}")}
+
+
+@cache
+def schema(version: int) -> dict[str, dict[str, Attr]]:
+    """The attributes of each element kind in files of schema ``version``."""
+    out: dict[str, dict[str, Attr]] = {w: {} for w in DOMAIN}
+    for a in ATTRIBUTES:
+        if a.since <= version:
+            out[a.where][a.name] = a
+    return out
+
+
+def _domain_types() -> dict[tuple[str, str], str]:
+    """(GraphML domain, name) -> GraphML type, over every version; a name has one type."""
+    types: dict[tuple[str, str], str] = {("node", "kind"): "string"}
+    for a in ATTRIBUTES:
+        key = (DOMAIN[a.where], a.name)
+        if types.setdefault(key, a.codec.gtype) != a.codec.gtype:
+            raise AssertionError(f"{key} has two types in the schema")  # a bug in the table
+    return types
+
+
+#: (GraphML domain, attribute name) -> GraphML type of every attribute of every version, and
+#: ``kind`` (written on nodes; an edge's kind is implied by its id).
+KNOWN = _domain_types()
+GRAPHML_TYPES = ("boolean", "int", "long", "float", "double", "string")
+#: The declared types a known attribute is read from: its own, or any number type for a float.
+COMPATIBLE = {
+    "long": {"int", "long"},
+    "double": {"int", "long", "float", "double"},
+    "string": {"string"},
+}
+
+
+def upgrade(g: nx.MultiDiGraph, version: int) -> None:
+    """Bring a model read from an older schema version up to :data:`SCHEMA_VERSION` in place.
+
+    Version 1 is the current version: nothing to do yet.
+    """
+    g.graph["kgnav_schema"] = SCHEMA_VERSION
+
+
+# ---------------------------------------------------------------------------------------- values
+
+
+def encode_features(f: np.ndarray) -> str:
+    """Base64 of the vector's little-endian float32 bytes."""
+    return base64.b64encode(np.ascontiguousarray(f, dtype=_DTYPE).tobytes()).decode("ascii")
+
+
+def decode_features(text: str, dim: int) -> np.ndarray:
+    """Inverse of :func:`encode_features`; raises ``ValueError`` on a bad payload or NaN/inf."""
+    # non-strict decoding is 3x faster; a damaged payload still fails the length check
+    try:
+        raw = binascii.a2b_base64(text)  # takes ASCII text as is (b64decode copies it first)
+    except (ValueError, TypeError):
+        raise ValueError("not base64") from None
+    if len(raw) != dim * _DTYPE.itemsize:
+        raise ValueError(f"{len(raw) // _DTYPE.itemsize} values, expected {dim}")
+    f = np.frombuffer(raw, dtype=_DTYPE)  # read-only: it shares the bytes
+    if _BIG_ENDIAN:
+        f = f.astype(np.float32)
+        f.setflags(write=False)
+    # a float64 sum of float32 values cannot overflow: it is finite iff every value is
+    if not math.isfinite(f.sum(dtype=np.float64)):
+        raise ValueError("contains NaN or infinite values")
+    return f
+
+
+_XML_BAD = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
+
+
+def xml_text(s: str) -> str:
+    """``s`` as XML character data; refuses characters XML 1.0 cannot hold."""
+    bad = _XML_BAD.search(s)
+    if bad:
+        raise ValueError(f"{show(s)} holds {bad.group()!r}, which XML cannot store")
+    if "&" in s or "<" in s or ">" in s or "\r" in s:  # \r would read back as \n
+        s = escape(s, {"\r": "&#13;"})
+    return s
+
+
+# ---------------------------------------------------------------------------------------- others
+# Attributes outside the schema are kept: read as their <key> declares, written back typed by
+# their Python value.
+
+
+def parse_other(gtype: str, text: str):
+    """The value of an attribute outside the schema, declared ``gtype``; ``ValueError`` if bad."""
+    if gtype == "boolean":
+        t = text.strip().lower()
+        if t not in ("true", "false", "1", "0"):
+            raise ValueError(f"not a boolean ({show(text)})")
+        return t in ("true", "1")
+    if gtype in ("int", "long"):
+        return Long().parse(text, None)
+    if gtype in ("float", "double"):
+        try:
+            return float(text)
+        except ValueError:
+            raise ValueError(f"not a number ({show(text)})") from None
+    return text
+
+
+def other_type(v) -> str:
+    """The GraphML type an attribute outside the schema is written as."""
+    if isinstance(v, bool | np.bool_):
+        return "boolean"
+    if isinstance(v, int | np.integer):
+        return "long"
+    if isinstance(v, float | np.floating):
+        return "double"
+    if isinstance(v, str):
+        return "string"
+    raise ValueError(
+        f"holds a {type(v).__name__}; GraphML holds booleans, integers, numbers and strings"
+    )
+
+
+def format_other(v, gtype: str) -> str:
+    if gtype == "boolean":
+        return "true" if v else "false"
+    if gtype == "long":
+        return str(int(v))
+    if gtype == "double":
+        return repr(float(v))
+    return xml_text(v)
