@@ -104,6 +104,8 @@ class _Writer:
             w: set(attrs) | ({"kind"} if w != "graph" else set()) for w, attrs in rows.items()
         }
         self.sizes = {w: len(names) for w, names in self.allowed.items()}
+        self.optional = {w: [n for n, a in attrs.items() if not a.required]
+                         for w, attrs in rows.items()}
 
     def _other_keys(self, ids, decl) -> dict[tuple[str, str], str]:
         """Declare a key per attribute outside the schema, typed from its values."""
@@ -148,7 +150,8 @@ class _Writer:
             text = self.templates[where] % values
         except (KeyError, ValueError, TypeError):  # a missing or bad value: the slow way
             text = self._data_slow(where, label, d)
-        if len(d) != self.sizes[where]:  # attributes outside the schema
+        absent = sum(1 for n in self.optional[where] if n not in d)
+        if len(d) + absent != self.sizes[where]:  # attributes outside the schema
             text += self._others(where, label, d)
         return text
 

@@ -40,6 +40,7 @@ import numpy as np
 from lxml import etree
 
 from kgnav.errors import KgnavError, ModelFileError, SchemaVersionError
+from kgnav.geometry import ScanGeometry
 from kgnav.graphml_schema import (
     COMPATIBLE,
     DOMAIN,
@@ -357,6 +358,12 @@ class _Builder:
             for kind in ("transition", "sees")
         }
         self.edge_sizes = {kind: len(self.parsers[kind]) + 1 for kind in ("transition", "sees")}
+        self.bins = None
+        if raw.get(self._scan_name(), ""):  # the profiles' length, before any state is read
+            try:
+                self.bins = ScanGeometry.from_json(raw[self._scan_name()]).bins
+            except (ValueError, KeyError, TypeError, RecursionError):
+                pass  # values() names the problem
         attrs = self.values("graph", line, "graph", raw, {})
         self.dim = attrs["feature_dim"]
         self.classes = set(attrs["classes"].split(","))
@@ -366,6 +373,10 @@ class _Builder:
         # networkx's own dicts, filled as add_node/add_edge fill them, without their per-call
         # cost (a fifth of the load time at 1e4 states)
         self.nodes, self.succ, self.pred = self.g._node, self.g._succ, self.g._pred
+
+    @staticmethod
+    def _scan_name() -> str:
+        return "scan"
 
     # -------------------------------------------------------------------- nodes
     def node(self, nid: str | None, data: dict[str, str], line) -> None:
@@ -481,7 +492,8 @@ def _check_node(b: _Builder, kind: str, attrs: dict) -> str | None:
 
 
 def _check_model(b: _Builder, g: nx.MultiDiGraph) -> None:
-    """What involves several elements: each object's ``n_views`` against the states that see it.
+    """What involves several elements: each object's ``n_views`` against the states that see
+    it, and (version 2) its ``score`` against the scores of those views.
 
     (Edge ends, their kinds and duplicate edges are checked as edges are added.)
     """
@@ -493,6 +505,12 @@ def _check_model(b: _Builder, g: nx.MultiDiGraph) -> None:
                 raise ModelFileError(
                     b.path, f"node {n!r}: n_views is {d['n_views']}, but {seen} states see it"
                 )
+            if b.version >= 2:
+                total = sum(e[SEES]["score"] for e in pred[n].values())
+                if abs(d["score"] - total) > 1e-6 * max(1.0, total):
+                    raise ModelFileError(
+                        b.path, f"node {n!r}: score is {d['score']!r}, but its views' scores "
+                        f"add up to {total!r}")
 
 
 # ---------------------------------------------------------------------------------------- canonical

@@ -34,6 +34,7 @@ from xml.sax.saxutils import escape
 import networkx as nx
 import numpy as np
 
+from kgnav.geometry import ScanGeometry
 from kgnav.model import MAX_COORD, SAFE_ID, SCHEMA_VERSION
 
 _DTYPE = np.dtype("<f4")
@@ -42,7 +43,7 @@ INT64 = (-(2**63), 2**63 - 1)
 
 #: Schema versions this release reads. Version-1 files are accepted as they are; when a version
 #: adds attributes, :func:`upgrade` is where an older file's model gets them.
-READABLE_VERSIONS = (1,)
+READABLE_VERSIONS = (1, 2)
 
 
 # ---------------------------------------------------------------------------------------- codecs
@@ -221,6 +222,52 @@ class Features:
         return encode_features(v)
 
 
+@dataclass(frozen=True)
+class ScanText(_String):
+    """The geometry of the states' range profiles (JSON of a
+    :class:`~kgnav.geometry.ScanGeometry`), or empty when they carry none."""
+
+    def parse(self, text: str, ctx) -> str:
+        if text:
+            try:
+                ScanGeometry.from_json(text)
+            except (ValueError, KeyError, TypeError, RecursionError):
+                raise ValueError(f"{show(text)} is not a scan geometry") from None
+        return text
+
+
+_F16 = np.dtype("<f2")
+
+
+@dataclass(frozen=True)
+class Ranges:
+    """Base64 of a range profile: the scan's ``bins`` little-endian float16, finite, >= 0;
+    held as a read-only array."""
+
+    gtype = "string"
+
+    def parse(self, text: str, ctx) -> np.ndarray:
+        bins = getattr(ctx, "bins", None)
+        if bins is None:
+            raise ValueError("a range profile, but the graph has no scan geometry")
+        try:
+            raw = binascii.a2b_base64(text)
+        except (ValueError, TypeError):
+            raise ValueError("not base64") from None
+        if len(raw) != bins * _F16.itemsize:
+            raise ValueError(f"{len(raw) // _F16.itemsize} values, the scan has {bins} bins")
+        r = np.frombuffer(raw, dtype=_F16)
+        if _BIG_ENDIAN:
+            r = r.astype(np.float16)
+            r.setflags(write=False)
+        if not (np.isfinite(r).all() and (r >= 0).all()):
+            raise ValueError("holds NaN, infinite or negative ranges")
+        return r
+
+    def format(self, v) -> str:
+        return base64.b64encode(np.ascontiguousarray(v, dtype=_F16).tobytes()).decode("ascii")
+
+
 # ---------------------------------------------------------------------------------------- schema
 
 
@@ -276,6 +323,13 @@ ATTRIBUTES: tuple[Attr, ...] = (
     Attr("sees", "distance", Double(0.0, MAX_COORD, " m")),
     Attr("sees", "pixels", Long(0)),
     Attr("sees", "obs", Numbers(3)),
+    # version 2: what the states saw of the free space, and the objects' extent and evidence
+    Attr("graph", "scan", ScanText(), since=2),
+    Attr("state", "ranges", Ranges(), required=False, since=2),
+    Attr("object", "radius", Double(0.0, MAX_COORD, " m"), since=2),
+    Attr("object", "score", Double(0.0, MAX_COORD), since=2),
+    Attr("sees", "radius", Double(0.0, MAX_COORD, " m"), since=2),
+    Attr("sees", "score", Double(0.0, 1.0), since=2),
 )
 
 DOMAIN = {
@@ -319,8 +373,19 @@ COMPATIBLE = {
 def upgrade(g: nx.MultiDiGraph, version: int) -> None:
     """Bring a model read from an older schema version up to :data:`SCHEMA_VERSION` in place.
 
-    Version 1 is the current version: nothing to do yet.
+    Version 1 files have no range profiles (``scan`` is empty), point-like objects (radius 0)
+    and views of full confidence (score 1, an object's score its number of views).
     """
+    if version < 2:
+        g.graph["scan"] = ""
+        for _n, d in g.nodes(data=True):
+            if d["kind"] == "object":
+                d["radius"] = 0.0
+                d["score"] = float(d["n_views"])
+        for *_e, d in g.edges(data=True):
+            if d["kind"] == "sees":
+                d["radius"] = 0.0
+                d["score"] = 1.0
     g.graph["kgnav_schema"] = SCHEMA_VERSION
 
 

@@ -581,8 +581,7 @@ class AbstractModel:
             for axis in ("x", "y", "z", "radius"):
                 d[axis] = float(d[axis] + (o[axis] - d[axis]) * o["n_obs"] / total)
             d["n_obs"] = total
-            d["score"] = float(d["score"] + o["score"])
-            for sid, _, data in list(self.graph.in_edges(other, data=True)):
+            for sid, _, data in list(self.graph.in_edges(other, data=True)):  # score follows
                 if data["kind"] == "sees":
                     self._link_view(sid, oid, {a: v for a, v in data.items() if a != "kind"})
             self._index.object_cells[self._object_cell(other)].remove(other)

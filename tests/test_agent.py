@@ -218,7 +218,7 @@ def test_agent_relocates_into_a_memory_of_the_same_house(env):
     info, _ = _run(env, reloc_agent, 0)  # same start: the first views match
     r = reloc_agent.relocation_
     assert r is not None and r.model_id == first.model_id
-    assert r.step <= 3
+    assert r.step <= 6  # two agreeing, geometrically verified matches
     # same start pose: the transform is (nearly) the identity
     assert math.hypot(r.transform[0], r.transform[1]) < 0.3
     assert abs(r.transform[2]) < math.radians(10)

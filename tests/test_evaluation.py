@@ -89,7 +89,8 @@ def test_workers_give_the_same_results_as_one(tmp_path):
 
 
 def test_si_relocates_in_later_rounds_and_ans_never(tmp_path):
-    cfg = _quick(variants=("ans", "si"), scenes=1, episodes=3, max_steps=150)
+    cfg = _quick(variants=("ans", "si"), scenes=1, episodes=4, max_steps=150,
+                 extractor="kgnav-encoder")
     recs, summary = run_eval(cfg, None, progress=False)
     assert summary["ans"]["relocation_rate"] == 0
     si = [r for r in recs if r["variant"] == "si"]

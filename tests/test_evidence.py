@@ -63,6 +63,10 @@ def test_merging_combines_evidence_exactly(a, b, data):
     for o in m.objects():
         assert ev[o] == brute_evidence(m, o)
     # views and scores are conserved: no view is lost or counted twice
+    for o in m.objects():
+        views = [d["score"] for _s, _o, k, d in m.graph.in_edges(o, keys=True, data=True)
+                 if k == SEES]
+        assert ev[o].score == pytest.approx(sum(views))
     total = sum(e.n_views for e in ev.values())
     assert total == sum(1 for *_e, k in m.graph.edges(keys=True) if k == SEES)
     assert sum(e.score for e in ev.values()) == pytest.approx(
@@ -139,6 +143,25 @@ def test_association_keeps_a_large_object_seen_from_two_sides_as_one():
     assert m.n_objects == 3
 
 
+def test_folding_two_objects_keeps_views_and_scores_exact():
+    """An object that grows until it reaches a neighbour of its class swallows it: views,
+    scores and provenance are combined, never counted twice."""
+    m = AbstractModel(2, model_id="fold")
+    s0 = m.add_state([1.0, 0.0], (0, 0, 0), [Detection("sofa", (2.0, 0.0, 0.4), radius=0.1,
+                                                       score=0.5)])
+    m.add_state([0.0, 1.0], (0, 0.5, 0), [Detection("sofa", (2.0, 1.1, 0.4), radius=0.1,
+                                                     score=0.25)])
+    assert m.n_objects == 2
+    # a view of the whole sofa: its surface spans both, so the two become one
+    m.add_state([1.0, 1.0], (0, 0.2, 0), [Detection("sofa", (2.0, 0.55, 0.4), radius=1.2,
+                                                    score=1.0)])
+    (o,) = list(m.objects())
+    d = m.graph.nodes[o]
+    assert d["n_views"] == 3 and d["score"] == pytest.approx(1.75)
+    assert len(d["origin"].split()) == 2 and m.known_node("fold/o1") == o
+    assert s0 in m.graph.predecessors(o)
+
+
 def test_occupancy_and_known_free():
     scan = ScanGeometry(90.0, 9, 5.0)
     m = AbstractModel(2, model_id="o", scan=scan)
@@ -161,3 +184,36 @@ def test_trusted_objects_lists_evidence():
     m.add_state([0.0, 1.0], (0.2, 0, 0), [Detection("chair", (1.0, 0.05, 0.4), score=0.7)])
     (row,) = query.trusted_objects(m, "chair")
     assert row["views"] == 2 and row["score"] == pytest.approx(1.6) and row["belief"] > 0.8
+
+
+# --------------------------------------------------------------------------- files
+@PROPS
+@given(models(scan=True))
+def test_geometry_and_evidence_survive_save_and_load(tmp_path, m):
+    path = tmp_path / "m.graphml"
+    m.save(path)
+    back = AbstractModel.load(path)
+    assert back == m
+    assert back.scan == m.scan
+    for s in m.states():
+        assert back.ranges(s).tobytes() == m.ranges(s).tobytes()
+    assert object_evidence(back) == object_evidence(m)
+
+
+def test_a_version_1_file_still_loads_and_saves_as_version_2(tmp_path):
+    """A model written before range profiles and evidence (schema 1) loads with point-like
+    objects, full-confidence views and no scan, and is written back as version 2."""
+    from pathlib import Path
+
+    v1 = Path(__file__).parent / "data" / "graphml" / "valid.graphml"
+    assert '<data key="g0">1</data>' in v1.read_text()
+    m = AbstractModel.load(v1)
+    assert m.graph.graph["kgnav_schema"] == 2 and m.scan is None
+    for o in m.objects():
+        d = m.graph.nodes[o]
+        assert d["radius"] == 0.0 and d["score"] == float(d["n_views"])
+    assert all(m.ranges(s) is None for s in m.states())
+    assert {o: e.n_missed for o, e in object_evidence(m).items()} == {"o0": 0, "o1": 0}
+    m.save(tmp_path / "v2.graphml")
+    again = AbstractModel.load(tmp_path / "v2.graphml")
+    assert again == m and '<data key="g0">2</data>' in (tmp_path / "v2.graphml").read_text()

@@ -44,7 +44,7 @@ def test_networkx_reads_the_file(tmp_path, tiny):
     g = nx.read_graphml(path, force_multigraph=True)
     assert set(g.nodes) == set(tiny.graph.nodes)
     assert set(g.edges(keys=True)) == set(tiny.graph.edges(keys=True))
-    assert g.graph["kgnav_schema"] == 1
+    assert g.graph["kgnav_schema"] == 2
 
 
 def test_failed_save_keeps_previous_file(tmp_path, tiny, monkeypatch):

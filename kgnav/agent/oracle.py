@@ -37,7 +37,7 @@ class OracleAgent:
 
     def __init__(self, env, stop_distance: float = 0.95, lookahead: int = 6,
                  turn_tolerance_deg: float = 20.0, step: float = 0.25, turn_deg: float = 30.0,
-                 search_depth: int = 8, patience: int = 20):
+                 search_depth: int = 16, patience: int = 20, search_nodes: int = 6000):
         self.env = env
         self.stop_distance = float(stop_distance)
         self.lookahead = int(lookahead)
@@ -45,6 +45,7 @@ class OracleAgent:
         self.step_length = float(step)
         self.turn = math.radians(turn_deg)
         self.search_depth = int(search_depth)
+        self.search_nodes = int(search_nodes)
         self.patience = int(patience)
         self._fields: dict = {}
         self.relocation_ = None
@@ -122,9 +123,10 @@ class OracleAgent:
         return bx, by, t
 
     def _search(self, nav, pose, here: float) -> list[int]:
-        """Breadth-first over action sequences (up to ``search_depth``) for the one ending
-        lowest on the distance field; poses are merged on a 5 cm / one-turn lattice. Returns
-        its actions, or a turn when nothing gets closer."""
+        """Breadth-first over action sequences (up to ``search_depth`` actions and
+        ``search_nodes`` poses) for the one ending lowest on the distance field; poses are
+        merged on a 5 cm / one-turn lattice, so a way out may first lead back. Returns its
+        actions, or a turn when nothing gets closer."""
         def key(p):
             return (round(p[0] / 0.05), round(p[1] / 0.05),
                     round(p[2] / self.turn) % round(2 * math.pi / self.turn))
@@ -132,7 +134,7 @@ class OracleAgent:
         seen = {key(pose)}
         queue = deque([(pose, [])])
         best, best_plan = here - 0.1, None
-        while queue:
+        while queue and len(seen) < self.search_nodes:
             p, plan = queue.popleft()
             if len(plan) >= self.search_depth:
                 continue

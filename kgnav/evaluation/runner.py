@@ -37,12 +37,12 @@ from kgnav.agent.policy import cooccurrence, make_policy
 from kgnav.agent.segmenter import make_segmenter
 from kgnav.atomic import atomic_open
 from kgnav.errors import KgnavError
-from kgnav.evidence import forget
 from kgnav.evaluation import fidelity
 from kgnav.evaluation.failures import FAILURE_CLASSES, classify
 from kgnav.evaluation.sources import SceneSource, scene_source
 from kgnav.evaluation.stats import paired_differences
 from kgnav.evaluation.variants import VARIANTS, Variant
+from kgnav.evidence import forget
 from kgnav.merge import merge
 from kgnav.model import AbstractModel
 from kgnav.sim.env import ObjectNavEnv
