@@ -20,9 +20,9 @@ the vocabulary that the model has not seen simply has no objects.
 >>> s0 = m.add_state(np.array([1.0, 0.0]), (0, 0, 0), [chair])
 >>> s1 = m.add_state(np.array([0.0, 1.0]), (0.25, 0, 0), [chair])
 >>> m.add_transition(s0, "move_forward", s1)
->>> goal_point(m, "chair", near=(0.0, 0.0))
-ObjectInfo(id='o0', cls='chair', position=(2.0, 0.0, 0.5), n_views=2, n_obs=2, radius=0.0,
-           score=2.0)
+>>> g = goal_point(m, "chair", near=(0.0, 0.0))
+>>> g.id, g.position, g.n_views
+('o0', (2.0, 0.0, 0.5), 2)
 >>> action_path(m, s0, s1)
 ['move_forward']
 """
