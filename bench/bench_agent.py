@@ -24,8 +24,10 @@ from _table import print_table
 from kgnav.agent.camera import Camera
 from kgnav.agent.features import make_extractor
 from kgnav.agent.loop import ObjectNavAgent
+from kgnav.agent.memory import Memory
 from kgnav.agent.segmenter import make_segmenter
 from kgnav.errors import KgnavError
+from kgnav.merge import merge
 from kgnav.sim import ObjectNavEnv
 
 TIMES: dict[str, float] = defaultdict(float)
@@ -55,24 +57,51 @@ class _Timed:
         return getattr(self._obj, attr)
 
 
-def run(extractor: str, width: int, height: int, scenes: int, episodes: int, split: str
-        ) -> tuple:
+def _memory_of(env, extractor: str, segmenter: str, episodes: int) -> Memory:
+    """A memory of the house: the models of its first episodes, merged where they relocate
+    (as Soft Incremental builds it), built outside the timing."""
+    models: dict = {}
+    ext = make_extractor(extractor)
+    for e in range(episodes):
+        agent = ObjectNavAgent(Camera.from_env(env), make_segmenter(segmenter), ext,
+                               memory=Memory(models, threshold=ext.loop_threshold)
+                               if models else None)
+        obs, _ = env.reset(seed=100 + e, options={"episode": e})
+        agent.reset(env.goal_class, seed=100 + e, scene=env.scene.name, episode=e,
+                    model_id=f"m{e}")
+        done = False
+        while not done:
+            obs, _r, term, trunc, _i = env.step(agent.act(obs))
+            done = term or trunc
+        r = agent.mergeable()
+        if r is not None:
+            models[r.model_id] = merge(models[r.model_id], agent.model_, transform=r.transform)
+        else:
+            models[agent.model_.model_id] = agent.model_
+    return Memory(models, threshold=ext.loop_threshold)
+
+
+def run(extractor: str, width: int, height: int, scenes: int, episodes: int, split: str,
+        segmenter: str = "default", memory_episodes: int = 0) -> tuple:
     TIMES.clear()
     steps = 0
-    for s in range(scenes):  # generate (and cache) the houses outside the timing
-        ObjectNavEnv(split, s, width, height)
+    memories = {}
+    for s in range(scenes):  # generate (and cache) the houses, build memories, untimed
+        env = ObjectNavEnv(split, s, width, height)
+        if memory_episodes:
+            memories[s] = _memory_of(env, extractor, segmenter, memory_episodes)
     t0, c0 = time.perf_counter(), time.thread_time()
     for s in range(scenes):
         env = ObjectNavEnv(split, s, width, height)
         env.step = timed("simulator", env.step)
-        agent = ObjectNavAgent(Camera.from_env(env), make_segmenter("default"),
-                               make_extractor(extractor))
+        agent = ObjectNavAgent(Camera.from_env(env), make_segmenter(segmenter),
+                               make_extractor(extractor), memory=memories.get(s))
         agent.segmenter = _Timed("segmenter", agent.segmenter)
         agent.extractor = _Timed("state features", agent.extractor)
         agent.state_creator = _Timed("state creator", agent.state_creator)
         agent.map_builder.update = timed("map update", agent.map_builder.update)
         agent.reason = timed("reasoning + planning", agent.reason)
-        for e in range(episodes):
+        for e in range(memory_episodes, memory_episodes + episodes):
             obs, _ = env.reset(seed=e, options={"episode": e})
             agent.reset(env.goal_class, seed=e, scene=env.scene.name, episode=e)
             done = False
@@ -101,22 +130,29 @@ def main() -> None:
     ap.add_argument("--height", type=int, default=120)
     ap.add_argument("--split", default="val")
     ap.add_argument("--extractors", default="opencv-gist,kgnav-encoder")
+    ap.add_argument("--segmenter", default="default")
+    ap.add_argument("--memory-episodes", type=int, default=0,
+                    help="with memory: the house's first N episodes build it (untimed), the "
+                         "next --episodes are timed with it (Soft Incremental)")
     args = ap.parse_args()
     summary = []
+    memory = f", memory of {args.memory_episodes} episodes" if args.memory_episodes else ""
     for name in args.extractors.split(","):
         try:
             make_extractor(name)
         except KgnavError:
             continue
         rows, rate, wall_rate, steps = run(name, args.width, args.height, args.scenes,
-                                           args.episodes, args.split)
-        print_table(f"agent loop, {name}, {args.split}, {args.width}x{args.height}, {steps} "
-                    f"steps ({rate:.0f} steps/s CPU)", ["stage", "ms/step", "% of time"], rows)
-        summary.append([name, args.split, f"{args.width}x{args.height}", steps, rate,
-                        wall_rate])
+                                           args.episodes, args.split, args.segmenter,
+                                           args.memory_episodes)
+        print_table(f"agent loop, {name}, {args.segmenter} segmenter, {args.split}{memory}, "
+                    f"{args.width}x{args.height}, {steps} steps ({rate:.0f} steps/s CPU)",
+                    ["stage", "ms/step", "% of time"], rows)
+        summary.append([name, args.segmenter, args.split, args.memory_episodes,
+                        f"{args.width}x{args.height}", steps, rate, wall_rate])
     print_table("whole loop (target >= 100 steps/s at 160x120)",
-                ["features", "split", "resolution", "steps", "steps/s (CPU)",
-                 "steps/s (wall)"], summary)
+                ["features", "segmenter", "split", "memory eps", "resolution", "steps",
+                 "steps/s (CPU)", "steps/s (wall)"], summary)
 
 
 if __name__ == "__main__":

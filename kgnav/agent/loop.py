@@ -34,7 +34,7 @@ from kgnav.agent.planner import FMMPlanner, Plan
 from kgnav.agent.policy import FrontierPolicy, GlobalPolicy
 from kgnav.agent.relocation import Relocalizer, Relocation, RelocationConfig
 from kgnav.agent.state_creator import AbstractState, StateCreator
-from kgnav.evidence import ScanTable
+from kgnav.evidence import ScanTable, belief, object_evidence
 from kgnav.merge import merge
 from kgnav.model import ACTIONS, AbstractModel
 
@@ -92,7 +92,7 @@ class Target:
     point: tuple[float, float]  # episode frame
     object_id: str | None = None
     radius: float = 0.0  # soft strategy: the search area around a remembered goal
-    stage: str = "area"  # soft strategy: reach the area, look around, then the point itself
+    stage: str = "area"  # soft strategy: the area, look around; the point; "commit": stop there
     scan_left: int | None = None
     seen_close: bool = False  # seen from within confirm_distance while heading for it
 
@@ -345,10 +345,11 @@ class ObjectNavAgent:
 
     def _approach(self, target: Target, plan: Plan, p: Percept) -> str | None:
         if plan.reached:
-            if target.source == "memory" and self._soft:
+            if target.source == "memory" and self._soft and target.stage != "commit":
                 return self._search(target)
-            if (self.config.confirm_distance > 0 and not target.seen_close
-                    and not (target.source == "memory" and self.config.strategy == "hard")):
+            trusted = target.source == "memory" and (self.config.strategy == "hard"
+                                                     or target.stage == "commit")
+            if self.config.confirm_distance > 0 and not target.seen_close and not trusted:
                 return self._confirm(target, p)
             self.log_.stop_reason = f"reached {target.source} goal"
             return "stop"
@@ -380,8 +381,11 @@ class ObjectNavAgent:
 
     def _search(self, target: Target) -> str | None:
         """Soft strategy at a remembered goal: look all around (12 turns of 30°) on reaching
-        its area, again at the point itself, then give it up. A goal in view ends the search
-        (see :meth:`_choose_target`)."""
+        its area, again at the point itself; a goal in view ends the search (see
+        :meth:`_choose_target`). If it never shows, the evidence decides: the looks just
+        taken count against the remembered object, and if the memory still believes in it
+        (an object a segmenter often misses, seen in many earlier visits) the agent goes to
+        the point and stops there; otherwise it gives the object up."""
         if target.scan_left is None:
             target.scan_left = 12
         target.scan_left -= 1
@@ -391,7 +395,20 @@ class ObjectNavAgent:
             target.stage, target.scan_left = "point", None
             self._best = (math.inf, self.step_)
             return None
+        if target.stage != "commit" and self._still_believed(target.object_id):
+            target.stage, target.scan_left = "commit", None
+            self._best = (math.inf, self.step_)
+            return None
         return self._drop(target)
+
+    def _still_believed(self, object_id: str | None) -> bool:
+        if object_id is None or object_id not in self.current_.graph:
+            return False
+        goals = self.config.goals
+        if goals.rule != "belief":
+            return False
+        ev = object_evidence(self.current_, [object_id], table=self._scans)[object_id]
+        return belief(ev, goals.belief) >= goals.min_belief
 
     def _drop(self, target: Target) -> None:
         if target.object_id is not None:
