@@ -1,0 +1,79 @@
+"""The segmenter's weight file (``kgnav/weights/segmenter.npz``): arrays + JSON metadata.
+
+The format is :mod:`kgnav.npz_weights`' (no pickle): one float32 array per parameter of the
+inference network (BatchNorm folded, names as in :class:`~kgnav.segnet.net.SegNet`'s state dict)
+and ``__meta__``::
+
+    {"format": "kgnav-segmenter-weights", "version": 1,
+     "arch": {"input_size": [80, 60], "stem": 16, "channels": [...], ...},
+     "classes": ["chair", ...], "train": {"seed": 0, "steps": ..., "threads": 2, ...}}
+
+Every way a file can be wrong raises :class:`SegmenterWeightsError` naming the file and the
+reason, in one line.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from kgnav.classes import OBJECT_CLASSES
+from kgnav.errors import KgnavError
+from kgnav.npz_weights import read_npz, save_npz
+from kgnav.segnet.net import SegArch, SegNet
+
+FORMAT = "kgnav-segmenter-weights"
+VERSION = 1
+DEFAULT_WEIGHTS = Path(__file__).resolve().parents[1] / "weights" / "segmenter.npz"
+
+
+class SegmenterWeightsError(KgnavError):
+    """A segmenter weight file cannot be used: missing, corrupt, foreign or of another version."""
+
+    def __init__(self, path: str | os.PathLike[str], reason: str):
+        self.path = os.fspath(path)
+        self.reason = reason
+        super().__init__(f"{self.path}: {reason}")
+
+
+@dataclass
+class SegmenterWeights:
+    """The content of a weight file: architecture, parameter arrays, class names, metadata."""
+
+    arch: SegArch
+    params: dict[str, np.ndarray]
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def classes(self) -> tuple[str, ...]:
+        return tuple(self.meta.get("classes", OBJECT_CLASSES))
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write atomically (a crash never leaves a half-written file at ``path``)."""
+        meta = dict(self.meta, format=FORMAT, version=VERSION, arch=self.arch.to_dict(),
+                    classes=list(self.classes))
+        return save_npz(path, self.params, meta)
+
+
+def expected_shapes(arch: SegArch | dict) -> dict[str, tuple[int, ...]]:
+    """Parameter name → shape of the inference network of ``arch``."""
+    arch = arch if isinstance(arch, SegArch) else SegArch.from_dict(arch)
+    return {k: tuple(v.shape) for k, v in SegNet(arch, batchnorm=False).state_dict().items()}
+
+
+def load_weights(path: str | os.PathLike[str] | None = None) -> SegmenterWeights:
+    """Read and validate a weight file (default: the weights shipped in the package)."""
+    path = Path(DEFAULT_WEIGHTS if path is None else path)
+    meta, params = read_npz(path, fmt=FORMAT, version=VERSION,
+                            what="kgnav segmenter weight file", error=SegmenterWeightsError,
+                            shapes=expected_shapes)
+    arch = SegArch.from_dict(meta["arch"])
+    classes = meta.get("classes")
+    if (not isinstance(classes, list) or len(classes) != arch.n_classes - 1
+            or not all(isinstance(c, str) for c in classes)):
+        raise SegmenterWeightsError(
+            path, f"class list does not fit the network ({arch.n_classes - 1} classes)")
+    return SegmenterWeights(arch, params, meta)
