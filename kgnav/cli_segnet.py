@@ -34,7 +34,7 @@ _D = SegTrainConfig()
               type=click.IntRange(min=1), help="Steps between checkpoints.")
 @click.option("--device", default="auto", show_default=True, type=_DEVICE,
               help="auto: cuda when available, else cpu.")
-@click.option("--threads", default=2, show_default=True, type=click.IntRange(min=1),
+@click.option("--threads", default=1, show_default=True, type=click.IntRange(min=1),
               help="CPU threads (results are reproducible for a given thread count).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def train_segmenter(out: Path, seed: int, steps: int, batch: int, time_budget: float | None,
