@@ -34,7 +34,7 @@ class SegTrainConfig(ConfigDict):
     """Everything that determines a training run (recorded in checkpoints and weight files)."""
 
     seed: int = 0
-    steps: int = 6000
+    steps: int = 12000
     batch: int = 24
     lr: float = 3e-3
     weight_decay: float = 1e-4
