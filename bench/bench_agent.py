@@ -5,7 +5,8 @@
 
 Stages: simulator (render + step), segmenter, state features, state creator, map update, model
 update (add state + transition, relocation), reasoning (goal query, global policy, FMM planner).
-Target: at least 100 steps/s at 160x120 for the memory-less agent.
+Target: at least 100 steps/s at 160x120 for the memory-less agent. ``--segmenter`` picks the
+segmenter (default: the learned network, the benchmark's default).
 """
 
 from __future__ import annotations
@@ -51,14 +52,15 @@ class _Timed:
         return getattr(self._obj, attr)
 
 
-def run(extractor: str, width: int, height: int, scenes: int, episodes: int) -> list:
+def run(extractor: str, width: int, height: int, scenes: int, episodes: int,
+        segmenter: str = "learned") -> list:
     TIMES.clear()
     steps = 0
     t0 = time.perf_counter()
     for s in range(scenes):
         env = ObjectNavEnv("val", s, width, height)
         env.step = timed("simulator", env.step)
-        agent = ObjectNavAgent(Camera.from_env(env), make_segmenter("default"),
+        agent = ObjectNavAgent(Camera.from_env(env), make_segmenter(segmenter),
                                make_extractor(extractor))
         agent.segmenter = _Timed("segmenter", agent.segmenter)
         agent.extractor = _Timed("state features", agent.extractor)
@@ -91,6 +93,7 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=3, help="per scene")
     ap.add_argument("--width", type=int, default=160)
     ap.add_argument("--height", type=int, default=120)
+    ap.add_argument("--segmenter", default="learned", help="learned, or a noise preset")
     args = ap.parse_args()
     summary = []
     for name in ("opencv-gist", "kgnav-encoder"):
@@ -98,8 +101,10 @@ def main() -> None:
             make_extractor(name)
         except KgnavError:
             continue
-        rows, rate, steps = run(name, args.width, args.height, args.scenes, args.episodes)
-        print_table(f"agent loop, {name}, {args.width}x{args.height}, {steps} steps "
+        rows, rate, steps = run(name, args.width, args.height, args.scenes, args.episodes,
+                                args.segmenter)
+        print_table(f"agent loop, {name}, {args.segmenter} segmenter, {args.width}x{args.height}, "
+                    f"{steps} steps "
                     f"({rate:.0f} steps/s)", ["stage", "ms/step", "% of time"], rows)
         summary.append([name, f"{args.width}x{args.height}", steps, rate])
     print_table("whole loop (target >= 100 steps/s at 160x120)",

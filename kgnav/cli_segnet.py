@@ -14,6 +14,7 @@ from kgnav.cli_encoder import _DEVICE, _OUT_FILE, _device, _one_thread, _writabl
 from kgnav.segnet.train import SegTrainConfig
 
 _D = SegTrainConfig()
+CALIBRATION_SEED = 3  # frames of the train houses for the score threshold (not training's)
 
 
 @click.command("train-segmenter")
@@ -32,18 +33,23 @@ _D = SegTrainConfig()
               help="Training checkpoint [default: --out with suffix .ckpt].")
 @click.option("--checkpoint-every", default=100, show_default=True,
               type=click.IntRange(min=1), help="Steps between checkpoints.")
+@click.option("--calibrate-frames", default=300, show_default=True,
+              type=click.IntRange(min=0),
+              help="Train-house frames to calibrate the segment-score threshold on (0: none).")
 @click.option("--device", default="auto", show_default=True, type=_DEVICE,
               help="auto: cuda when available, else cpu.")
 @click.option("--threads", default=1, show_default=True, type=click.IntRange(min=1),
               help="CPU threads (results are reproducible for a given thread count).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def train_segmenter(out: Path, seed: int, steps: int, batch: int, time_budget: float | None,
-                    resume: bool, checkpoint: Path | None, checkpoint_every: int, device: str,
-                    threads: int, quiet: bool) -> None:
+                    resume: bool, checkpoint: Path | None, checkpoint_every: int,
+                    calibrate_frames: int, device: str, threads: int, quiet: bool) -> None:
     """Train the RGB-D segmenter on frames of the train houses; write weights with metadata.
 
-    The same --seed, --steps and --batch give the same weights (CPU, same --threads). Val
-    houses are never rendered here: measure on them with `kgnav segmenter-bench`.
+    The same --seed, --steps and --batch give the same weights (CPU, same --threads). After
+    training, the segment-score threshold with the best F1 on frames of the train houses is
+    stored with the weights. Val houses are never rendered here: measure on them with
+    `kgnav segmenter-bench`.
     """
     from tqdm import tqdm
 
@@ -71,14 +77,30 @@ def train_segmenter(out: Path, seed: int, steps: int, batch: int, time_budget: f
         budget = None if time_budget is None else 60.0 * time_budget
         trainer.fit(time_budget_s=budget, progress=progress, checkpoint=ckpt,
                     checkpoint_every=checkpoint_every)
-    trainer.export().save(out)
+    weights = trainer.export()
+    if calibrate_frames:
+        from kgnav.segnet.bench import calibrate_min_score, render_frames
+        from kgnav.segnet.segmenter import LearnedSegmenter
+
+        with tqdm(total=calibrate_frames, desc="calibrating on train frames", unit="frame",
+                  disable=quiet, dynamic_ncols=True, mininterval=1.0) as bar:
+            frames = render_frames("train", calibrate_frames, seed=CALIBRATION_SEED,
+                                   progress=lambda k: bar.update(k - bar.n))
+        thr, curve = calibrate_min_score(LearnedSegmenter(weights, device=dev), frames)
+        weights.meta["score_threshold"] = thr
+        weights.meta["score_threshold_source"] = (
+            f"best F1 of instance recall and segment precision on {calibrate_frames} frames "
+            f"of the train houses, seed {CALIBRATION_SEED}")
+        weights.meta["score_threshold_curve"] = curve
+    weights.save(out)
     state = "done" if trainer.done else "stopped by --time-budget"
     click.echo(f"{state} at step {trainer.step}/{steps} ({trainer.elapsed_s / 60:.1f} min of "
-               f"training, {threads} thread(s) on {dev}); weights -> {out}; checkpoint {ckpt}")
+               f"training, {threads} thread(s) on {dev}); score threshold "
+               f"{weights.score_threshold:.2f}; weights -> {out}; checkpoint {ckpt}")
     if not trainer.done:
         click.echo(f"continue with: kgnav train-segmenter --resume --out {out} --checkpoint "
-                   f"{ckpt} --seed {seed} --steps {steps} --batch {batch} --threads {threads}",
-                   err=True)
+                   f"{ckpt} --seed {seed} --steps {steps} --batch {batch} --threads {threads} "
+                   f"--calibrate-frames {calibrate_frames}", err=True)
 
 
 _PRESETS = ("clean", "default", "heavy")

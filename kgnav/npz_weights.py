@@ -18,8 +18,18 @@ from pathlib import Path
 import numpy as np
 
 from kgnav.atomic import atomic_open
+from kgnav.errors import KgnavError
 
 META_KEY = "__meta__"
+
+
+class WeightsError(KgnavError):
+    """A weight file cannot be used; the message is ``"<path>: <reason>"`` on one line."""
+
+    def __init__(self, path: str | os.PathLike[str], reason: str):
+        self.path = os.fspath(path)
+        self.reason = reason
+        super().__init__(f"{self.path}: {reason}")
 
 
 def save_npz(path: str | os.PathLike[str], params: dict[str, np.ndarray], meta: dict) -> Path:

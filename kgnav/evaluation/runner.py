@@ -59,7 +59,7 @@ class EvalConfig:
     scenes: int | None = None
     episodes: int | None = None
     workers: int = 1
-    segmenter: str = "default"
+    segmenter: str = "learned"
     extractor: str = "auto"
     threshold: float | None = None
     seed: int = 0

@@ -259,3 +259,32 @@ def bench(segmenters: Sequence[tuple[str, object]], frames: Frames, min_pixels: 
         out[label] = score(seg, frames, min_pixels,
                            None if progress is None else (lambda k, lb=label: progress(lb, k)))
     return out
+
+
+#: score thresholds tried by :func:`calibrate_min_score`
+SCORE_GRID = tuple(round(0.05 * i, 2) for i in range(19))
+
+
+def calibrate_min_score(segmenter, frames: Frames, grid: Sequence[float] = SCORE_GRID,
+                        min_pixels: int = 20) -> tuple[float, list[dict]]:
+    """The segment-score threshold of ``grid`` with the best F1 of instance recall and segment
+    precision on ``frames`` (frames of train houses: tune on train), and the whole curve
+    ``[{"threshold", "recall", "precision", "f1", "fp_per_frame"}]``."""
+    from kgnav.segnet.segmenter import segmentation_from_classes
+
+    maps = [segmenter.probabilities(frames.rgb[k], frames.depth[k]) for k in range(len(frames))]
+    curve = []
+    for t in grid:
+        sc = Scorer(min_pixels)
+        for k, (cls, conf) in enumerate(maps):
+            depth = frames.depth[k]
+            out = segmentation_from_classes(cls, conf, depth.shape[::-1], min_pixels,
+                                            segmenter.class_names, t)
+            sc.add(out, depth, frames.semantic[k], 0.0)
+        r = sc.report()
+        f1 = 2 * r["recall"] * r["precision"] / max(r["recall"] + r["precision"], 1e-9)
+        curve.append({"threshold": t, "recall": round(r["recall"], 4),
+                      "precision": round(r["precision"], 4), "f1": round(f1, 4),
+                      "fp_per_frame": round(r["fp_per_frame"], 4)})
+    best = max(curve, key=lambda c: (c["f1"], -c["threshold"]))
+    return best["threshold"], curve

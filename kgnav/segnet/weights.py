@@ -6,7 +6,8 @@ and ``__meta__``::
 
     {"format": "kgnav-segmenter-weights", "version": 1,
      "arch": {"input_size": [80, 60], "stem": 16, "channels": [...], ...},
-     "classes": ["chair", ...], "train": {"seed": 0, "steps": ..., "threads": 2, ...}}
+     "classes": ["chair", ...], "score_threshold": 0.6, "score_threshold_source": "...",
+     "train": {"seed": 0, "steps": ..., "threads": 1, "loss_curve": [...], ...}}
 
 Every way a file can be wrong raises :class:`SegmenterWeightsError` naming the file and the
 reason, in one line.
@@ -21,8 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from kgnav.classes import OBJECT_CLASSES
-from kgnav.errors import KgnavError
-from kgnav.npz_weights import read_npz, save_npz
+from kgnav.npz_weights import WeightsError, read_npz, save_npz
 from kgnav.segnet.net import SegArch, SegNet
 
 FORMAT = "kgnav-segmenter-weights"
@@ -30,13 +30,8 @@ VERSION = 1
 DEFAULT_WEIGHTS = Path(__file__).resolve().parents[1] / "weights" / "segmenter.npz"
 
 
-class SegmenterWeightsError(KgnavError):
+class SegmenterWeightsError(WeightsError):
     """A segmenter weight file cannot be used: missing, corrupt, foreign or of another version."""
-
-    def __init__(self, path: str | os.PathLike[str], reason: str):
-        self.path = os.fspath(path)
-        self.reason = reason
-        super().__init__(f"{self.path}: {reason}")
 
 
 @dataclass
@@ -50,6 +45,11 @@ class SegmenterWeights:
     @property
     def classes(self) -> tuple[str, ...]:
         return tuple(self.meta.get("classes", OBJECT_CLASSES))
+
+    @property
+    def score_threshold(self) -> float:
+        """Segments scoring below this are dropped (0 until calibrated)."""
+        return float(self.meta.get("score_threshold", 0.0))
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write atomically (a crash never leaves a half-written file at ``path``)."""
@@ -76,4 +76,7 @@ def load_weights(path: str | os.PathLike[str] | None = None) -> SegmenterWeights
             or not all(isinstance(c, str) for c in classes)):
         raise SegmenterWeightsError(
             path, f"class list does not fit the network ({arch.n_classes - 1} classes)")
+    thr = meta.get("score_threshold", 0.0)
+    if not isinstance(thr, int | float) or not 0 <= thr < 1:
+        raise SegmenterWeightsError(path, f"score_threshold {thr!r} is not in [0, 1)")
     return SegmenterWeights(arch, params, meta)
