@@ -10,7 +10,14 @@ from pathlib import Path
 
 import click
 
-from kgnav.cli_encoder import _DEVICE, _OUT_FILE, _device, _one_thread, _writable_file
+from kgnav.cli_training import (
+    OUT_FILE,
+    finished,
+    prepare,
+    run_training,
+    set_threads,
+    training_options,
+)
 from kgnav.segnet.train import SegTrainConfig
 
 _D = SegTrainConfig()
@@ -18,7 +25,7 @@ CALIBRATION_SEED = 3  # frames of the train houses for the score threshold (not 
 
 
 @click.command("train-segmenter")
-@click.option("--out", "out", type=_OUT_FILE, required=True,
+@click.option("--out", "out", type=OUT_FILE, required=True,
               help="Where to write the weights (.npz).")
 @click.option("--seed", default=_D.seed, show_default=True, type=click.IntRange(min=0),
               help="Seed of the initial weights and of every batch.")
@@ -26,24 +33,13 @@ CALIBRATION_SEED = 3  # frames of the train houses for the score threshold (not 
               help="Optimisation steps (the learning rate decays to zero at the last).")
 @click.option("--batch", default=_D.batch, show_default=True, type=click.IntRange(min=2),
               help="Frames rendered per step.")
-@click.option("--time-budget", type=click.FloatRange(min=0, min_open=True), metavar="MIN",
-              help="Stop after this many minutes of training (checkpointed; --resume goes on).")
-@click.option("--resume", is_flag=True, help="Continue from --checkpoint.")
-@click.option("--checkpoint", type=_OUT_FILE,
-              help="Training checkpoint [default: --out with suffix .ckpt].")
-@click.option("--checkpoint-every", default=100, show_default=True,
-              type=click.IntRange(min=1), help="Steps between checkpoints.")
 @click.option("--calibrate-frames", default=300, show_default=True,
               type=click.IntRange(min=0),
               help="Train-house frames to calibrate the segment-score threshold on (0: none).")
-@click.option("--device", default="auto", show_default=True, type=_DEVICE,
-              help="auto: cuda when available, else cpu.")
-@click.option("--threads", default=1, show_default=True, type=click.IntRange(min=1),
-              help="CPU threads (results are reproducible for a given thread count).")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
-def train_segmenter(out: Path, seed: int, steps: int, batch: int, time_budget: float | None,
-                    resume: bool, checkpoint: Path | None, checkpoint_every: int,
-                    calibrate_frames: int, device: str, threads: int, quiet: bool) -> None:
+@training_options(threads_default=1)
+def train_segmenter(out: Path, seed: int, steps: int, batch: int, calibrate_frames: int,
+                    time_budget: float | None, resume: bool, checkpoint: Path | None,
+                    checkpoint_every: int, device: str, threads: int, quiet: bool) -> None:
     """Train the RGB-D segmenter on frames of the train houses; write weights with metadata.
 
     The same --seed, --steps and --batch give the same weights (CPU, same --threads). After
@@ -55,28 +51,10 @@ def train_segmenter(out: Path, seed: int, steps: int, batch: int, time_budget: f
 
     from kgnav.segnet.train import SegTrainer
 
-    _writable_file(out, "--out")
-    ckpt = checkpoint or out.with_suffix(".ckpt")
-    _writable_file(ckpt, "--checkpoint")
-    if resume and not ckpt.is_file():
-        raise click.BadParameter(f"no checkpoint at {ckpt} to resume from",
-                                 param_hint="--resume")
-    dev = _device(device)
-    _one_thread(threads)
-    cfg = SegTrainConfig(seed=seed, steps=steps, batch=batch)
-    trainer = SegTrainer(cfg, device=dev, threads=threads)
-    if resume:
-        trainer.load_checkpoint(ckpt)
-        click.echo(f"resuming {ckpt} at step {trainer.step}/{steps}", err=True)
-    with tqdm(total=steps, initial=trainer.step, desc="train-segmenter", unit="step",
-              disable=quiet, dynamic_ncols=True, mininterval=1.0) as bar:
-        def progress(step: int, loss: float) -> None:
-            bar.update(step - bar.n)
-            bar.set_postfix(loss=f"{loss:.3f}", refresh=False)
-
-        budget = None if time_budget is None else 60.0 * time_budget
-        trainer.fit(time_budget_s=budget, progress=progress, checkpoint=ckpt,
-                    checkpoint_every=checkpoint_every)
+    ckpt, dev = prepare(out, checkpoint, resume, device, threads)
+    trainer = SegTrainer(SegTrainConfig(seed=seed, steps=steps, batch=batch), device=dev,
+                         threads=threads)
+    run_training(trainer, ckpt, resume, "train-segmenter", time_budget, checkpoint_every, quiet)
     weights = trainer.export()
     if calibrate_frames:
         from kgnav.segnet.bench import calibrate_min_score, render_frames
@@ -93,9 +71,7 @@ def train_segmenter(out: Path, seed: int, steps: int, batch: int, time_budget: f
             f"of the train houses, seed {CALIBRATION_SEED}")
         weights.meta["score_threshold_curve"] = curve
     weights.save(out)
-    state = "done" if trainer.done else "stopped by --time-budget"
-    click.echo(f"{state} at step {trainer.step}/{steps} ({trainer.elapsed_s / 60:.1f} min of "
-               f"training, {threads} thread(s) on {dev}); score threshold "
+    click.echo(f"{finished(trainer)}, {threads} thread(s) on {dev}); score threshold "
                f"{weights.score_threshold:.2f}; weights -> {out}; checkpoint {ckpt}")
     if not trainer.done:
         click.echo(f"continue with: kgnav train-segmenter --resume --out {out} --checkpoint "
@@ -158,7 +134,7 @@ def segmenter_bench(split: str, out_dir: Path, n_frames: int, segmenters: list[s
             if "unknown segmenter" in str(exc):
                 raise click.BadParameter(str(exc), param_hint="--segmenters") from None
             raise
-    _one_thread(1)
+    set_threads(1)
     with tqdm(total=n_frames, desc=f"rendering {split} frames", unit="frame", disable=quiet,
               dynamic_ncols=True, mininterval=1.0) as bar:
         frames = render_frames(split, n_frames, seed, object_share,

@@ -13,7 +13,9 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -30,6 +32,25 @@ class WeightsError(KgnavError):
         self.path = os.fspath(path)
         self.reason = reason
         super().__init__(f"{self.path}: {reason}")
+
+
+@dataclass
+class NetWeights:
+    """A weight file's content: architecture (with ``to_dict``), parameter arrays, metadata.
+    Subclasses name their ``FORMAT`` and ``VERSION``."""
+
+    arch: Any
+    params: dict[str, np.ndarray]
+    meta: dict = field(default_factory=dict)
+
+    FORMAT: ClassVar[str] = "kgnav-weights"
+    VERSION: ClassVar[int] = 1
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write atomically (a crash never leaves a half-written file at ``path``)."""
+        meta = dict(self.meta, format=self.FORMAT, version=self.VERSION,
+                    arch=self.arch.to_dict())
+        return save_npz(path, self.params, meta)
 
 
 def save_npz(path: str | os.PathLike[str], params: dict[str, np.ndarray], meta: dict) -> Path:

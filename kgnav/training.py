@@ -15,7 +15,7 @@ import math
 import os
 import time
 from collections.abc import Callable
-from dataclasses import asdict, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import torch
@@ -35,6 +35,20 @@ class ConfigDict:
         known = {f.name for f in fields(cls)}
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()
                       if k in known})
+
+
+@dataclass(frozen=True)
+class TrainingConfig(ConfigDict):
+    """The fields every training run has; a network's config adds its own."""
+
+    seed: int = 0
+    steps: int = 2000
+    lr: float = 2e-3
+    weight_decay: float = 1e-4
+    warmup: int = 50
+    split: str = "train"
+    n_houses: int = 20  # the first n houses of the split
+    input_size: tuple[int, int] = (80, 60)  # (width, height) the network sees
 
 
 def cosine_lr(lr: float, warmup: int, steps: int, step: int) -> float:
@@ -73,6 +87,15 @@ class SeededTrainer:
 
     def _train_step(self) -> float:
         raise NotImplementedError
+
+    def optimise(self, loss: torch.Tensor) -> float:
+        """One optimizer step on ``loss``; advances :attr:`step`; returns the loss value."""
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        self.opt.step()
+        self.step += 1
+        self.last_loss = float(loss.detach())
+        return self.last_loss
 
     def set_lr(self) -> None:
         """Set the optimizer's learning rate for :attr:`step` (:func:`cosine_lr`)."""

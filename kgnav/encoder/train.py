@@ -39,18 +39,16 @@ from kgnav.encoder.views import (
     relation_matrix,
 )
 from kgnav.encoder.weights import PAPER_THRESHOLD, EncoderWeights, EncoderWeightsError
-from kgnav.training import ConfigDict, SeededTrainer, cosine_lr
+from kgnav.training import SeededTrainer, TrainingConfig, cosine_lr
 
 OBJECTIVES = ("contrastive", "autoencoder")
 CHECKPOINT_FORMAT = "kgnav-encoder-checkpoint"
 
 
 @dataclass(frozen=True)
-class TrainConfig(ConfigDict):
+class TrainConfig(TrainingConfig):
     """Everything that determines a training run (recorded in checkpoints and weight files)."""
 
-    seed: int = 0
-    steps: int = 2000
     dim: int = 128
     objective: str = "contrastive"
     houses_per_batch: int = 8
@@ -58,12 +56,6 @@ class TrainConfig(ConfigDict):
     temperature: float = 0.1
     shift_frac: float = 0.5  # share of hard negatives that are moved (the rest are turned)
     shift_max: float = 2.0  # m, farthest move of a moved hard negative (from just over 1 m)
-    lr: float = 2e-3
-    weight_decay: float = 1e-4
-    warmup: int = 50
-    split: str = "train"
-    n_houses: int = 20  # the first n houses of the split
-    input_size: tuple[int, int] = (80, 60)
     channels: tuple[int, ...] = (16, 32, 64, 128)
 
     def __post_init__(self):
@@ -174,12 +166,7 @@ class Trainer(SeededTrainer):
                                c.temperature)
         else:
             loss = F.mse_loss(self.decoder(z), x)
-        self.opt.zero_grad(set_to_none=True)
-        loss.backward()
-        self.opt.step()
-        self.step += 1
-        self.last_loss = float(loss.detach())
-        return self.last_loss
+        return self.optimise(loss)
 
     def export(self, threshold: float = PAPER_THRESHOLD,
                threshold_source: str = "paper default (not calibrated)") -> EncoderWeights:

@@ -18,14 +18,12 @@ file and the reason.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
-
-import numpy as np
+from typing import ClassVar
 
 from kgnav.encoder.net import Arch, ConvEncoder
 from kgnav.npz_weights import META_KEY as META_KEY  # re-exported: the layout's metadata key
-from kgnav.npz_weights import WeightsError, read_npz, save_npz
+from kgnav.npz_weights import NetWeights, WeightsError, read_npz
 
 FORMAT = "kgnav-encoder-weights"
 VERSION = 1
@@ -37,22 +35,16 @@ class EncoderWeightsError(WeightsError):
     """An encoder weight file cannot be used: missing, corrupt, foreign or of another version."""
 
 
-@dataclass
-class EncoderWeights:
+class EncoderWeights(NetWeights):
     """The content of a weight file: architecture, parameter arrays and metadata."""
 
     arch: Arch
-    params: dict[str, np.ndarray]
-    meta: dict = field(default_factory=dict)
+    FORMAT: ClassVar[str] = FORMAT
+    VERSION: ClassVar[int] = VERSION
 
     @property
     def threshold(self) -> float:
         return float(self.meta.get("threshold", PAPER_THRESHOLD))
-
-    def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write atomically (a crash never leaves a half-written file at ``path``)."""
-        meta = dict(self.meta, format=FORMAT, version=VERSION, arch=self.arch.to_dict())
-        return save_npz(path, self.params, meta)
 
 
 def expected_shapes(arch: Arch | dict) -> dict[str, tuple[int, ...]]:

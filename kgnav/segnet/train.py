@@ -24,27 +24,22 @@ from kgnav.encoder.net import downscale, to_tensor
 from kgnav.segnet.data import LabelledViews, augment, labels_at
 from kgnav.segnet.net import N_OUT, SegArch, SegNet, depth_tensor, downscale_depth, fold_batchnorm
 from kgnav.segnet.weights import SegmenterWeights, SegmenterWeightsError
-from kgnav.training import ConfigDict, SeededTrainer
+from kgnav.training import SeededTrainer, TrainingConfig
 
 CHECKPOINT_FORMAT = "kgnav-segmenter-checkpoint"
 
 
 @dataclass(frozen=True)
-class SegTrainConfig(ConfigDict):
+class SegTrainConfig(TrainingConfig):
     """Everything that determines a training run (recorded in checkpoints and weight files)."""
 
-    seed: int = 0
     steps: int = 12000
-    batch: int = 24
     lr: float = 3e-3
-    weight_decay: float = 1e-4
     warmup: int = 100
+    batch: int = 24
     background_weight: float = 0.7  # loss weight of background pixels (objects: 1)
     goal_weight: float = 1.5  # loss weight of the six ObjectNav goal classes
     object_share: float = 0.75  # share of views aimed at an object
-    split: str = "train"
-    n_houses: int = 20  # the first n houses of the split
-    input_size: tuple[int, int] = (80, 60)
     stem: int = 16
     channels: tuple[int, ...] = (24, 32, 64)
     depth_channels: tuple[int, ...] = (16, 32, 64)
@@ -118,12 +113,7 @@ class SegTrainer(SeededTrainer):
         self.set_lr()
         self.net.train()
         loss = F.cross_entropy(self.net(x, d), y, weight=self._weights)
-        self.opt.zero_grad(set_to_none=True)
-        loss.backward()
-        self.opt.step()
-        self.step += 1
-        self.last_loss = float(loss.detach())
-        return self.last_loss
+        return self.optimise(loss)
 
     def export(self) -> SegmenterWeights:
         """The inference weights (BatchNorm folded) with their metadata."""

@@ -16,13 +16,11 @@ reason, in one line.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
-
-import numpy as np
+from typing import ClassVar
 
 from kgnav.classes import OBJECT_CLASSES
-from kgnav.npz_weights import WeightsError, read_npz, save_npz
+from kgnav.npz_weights import NetWeights, WeightsError, read_npz
 from kgnav.segnet.net import SegArch, SegNet
 
 FORMAT = "kgnav-segmenter-weights"
@@ -34,13 +32,13 @@ class SegmenterWeightsError(WeightsError):
     """A segmenter weight file cannot be used: missing, corrupt, foreign or of another version."""
 
 
-@dataclass
-class SegmenterWeights:
-    """The content of a weight file: architecture, parameter arrays, class names, metadata."""
+class SegmenterWeights(NetWeights):
+    """The content of a weight file: architecture, parameter arrays, metadata (with the class
+    names and the calibrated segment-score threshold)."""
 
     arch: SegArch
-    params: dict[str, np.ndarray]
-    meta: dict = field(default_factory=dict)
+    FORMAT: ClassVar[str] = FORMAT
+    VERSION: ClassVar[int] = VERSION
 
     @property
     def classes(self) -> tuple[str, ...]:
@@ -50,12 +48,6 @@ class SegmenterWeights:
     def score_threshold(self) -> float:
         """Segments scoring below this are dropped (0 until calibrated)."""
         return float(self.meta.get("score_threshold", 0.0))
-
-    def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write atomically (a crash never leaves a half-written file at ``path``)."""
-        meta = dict(self.meta, format=FORMAT, version=VERSION, arch=self.arch.to_dict(),
-                    classes=list(self.classes))
-        return save_npz(path, self.params, meta)
 
 
 def expected_shapes(arch: SegArch | dict) -> dict[str, tuple[int, ...]]:
