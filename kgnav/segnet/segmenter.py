@@ -59,13 +59,17 @@ class LearnedSegmenter:
         Segments whose mean confidence is below this are dropped (default: the weight file's
         ``score_threshold``, calibrated on train-house frames by ``kgnav train-segmenter``;
         0 keeps every segment).
+    threads:
+        CPU threads for one frame (default 1; None: torch's setting). One small frame gains
+        nothing from more, and on a busy machine two threads made a frame 15–50× slower
+        (4 ms → 60–200 ms), the threads waiting on each other.
     """
 
     name = NAME
 
     def __init__(self, weights: str | os.PathLike[str] | SegmenterWeights | None = None,
                  seed: int = 0, device: str = "cpu", min_pixels: int = 20,
-                 min_score: float | None = None):
+                 min_score: float | None = None, threads: int | None = 1):
         w = weights if isinstance(weights, SegmenterWeights) else load_weights(weights)
         self.arch = w.arch
         self.class_names = w.classes
@@ -74,6 +78,7 @@ class LearnedSegmenter:
         self.min_pixels = int(min_pixels)
         self.min_score = float(w.score_threshold if min_score is None else min_score)
         self.device = resolve_device(device)
+        self.threads = threads
         net = SegNet(w.arch, batchnorm=False)
         net.load_state_dict({k: torch.from_numpy(v) for k, v in w.params.items()})
         for p in net.parameters():
@@ -91,8 +96,15 @@ class LearnedSegmenter:
     def probabilities(self, rgb: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(class map uint8 (h, w), confidence float32 (h, w)) at the network's input size."""
         x, d = preprocess(rgb, depth, self.arch)  # already channels_last (NHWC memory)
-        with torch.inference_mode():
-            logits = self.net(x.to(self.device), d.to(self.device))[0]
+        prev = torch.get_num_threads()
+        if self.threads and self.threads != prev:
+            torch.set_num_threads(self.threads)
+        try:
+            with torch.inference_mode():
+                logits = self.net(x.to(self.device), d.to(self.device))[0]
+        finally:
+            if self.threads and self.threads != prev:
+                torch.set_num_threads(prev)
         # (h, w, C) view of the channels-last output: the per-pixel reductions run over
         # contiguous memory, faster in numpy than torch.softmax for one small frame
         lg = logits.permute(1, 2, 0).float().cpu().numpy()
