@@ -157,6 +157,8 @@ def segmenter_bench(split: str, out_dir: Path, n_frames: int, segmenters: list[s
                    out_dir / "confusion.png",
                    title=f"pixel confusion on {split}: {n_frames} frames, seed {seed}")
     con = Console(highlight=False, soft_wrap=True)
+    if not con.is_terminal:  # a log file or pipe: do not squeeze the table to 80 columns
+        con = Console(highlight=False, soft_wrap=True, width=140)
     con.print(bench_table(results, f"segmenters on {split}: {n_frames} frames, seed {seed}"))
     for label, r in results.items():
         pairs = ", ".join(f"{t}->{p} {n}" for t, p, n in r["confusion_pairs"][:8]) or "none"
@@ -190,6 +192,9 @@ def bench_table(results: dict, title: str):
     row("false-positive segments / frame", lambda r: r["fp_per_frame"])
     row("  on background / of a goal class", lambda r: (r["fp_background_per_frame"],
                                                         r["fp_goal_per_frame"]))
+    row("objects mislabelled in most / all views", lambda r: (
+        r["persistence"]["mislabelled_in_most_views"],
+        r["persistence"]["mislabelled_in_all_views"]))
     row("ms / frame (median, p90)", lambda r: (r["ms_per_frame"]["median"],
                                                r["ms_per_frame"]["p90"]))
     return table

@@ -12,6 +12,10 @@ Definitions (those of ``docs/segmenter.md``, at the state creator's 20-pixel min
   positives** (per frame; of them, on background and of a goal class);
 * **confusion pairs**: segments whose pixels lie mostly on an object of another class (true →
   predicted, counted), and the pixel confusion matrix (``confusion.png``);
+* **persistence**: for objects seen in at least 3 frames with ≥ 100 pixels, the share
+  mislabelled in most of their views and in all of them (a view is *mislabelled* when at least
+  30 % of the object's pixels carry an object class and the most common one is wrong): errors
+  no number of views corrects;
 * **time**: wall time of one segmenter call per frame (median, 90th percentile).
 
 >>> distance_band(1.0), distance_band(3.0), distance_band(4.9), size_band(50)
@@ -94,9 +98,12 @@ class Scorer:
         self.pairs = Counter()  # (true, predicted) of mislabelled segments
         self.frames = 0
         self.seconds: list[float] = []
+        self.views: dict[tuple[str, int], list[bool]] = {}  # (scene, instance) -> mislabelled?
 
-    def add(self, out, depth: np.ndarray, semantic: np.ndarray, seconds: float) -> None:
-        """Score one frame's :class:`Segmentation` against its ground truth."""
+    def add(self, out, depth: np.ndarray, semantic: np.ndarray, seconds: float,
+            scene: str = "") -> None:
+        """Score one frame's :class:`Segmentation` against its ground truth (``scene`` names
+        the house, for the persistence of errors across views)."""
         self.frames += 1
         self.seconds.append(seconds)
         gcls = semantic[..., 0].ravel().astype(np.int64)
@@ -139,6 +146,13 @@ class Scorer:
                         gcls[np.argmax(ginst == main)])) - 1], s.cls)] += 1
         for i, c in inst_cls.items():
             m = ginst == i
+            if gsize[i] >= 100:
+                lab = np.bincount(pcls[m], minlength=N_CLS)
+                lab[0] = 0
+                if lab.sum() >= 0.3 * gsize[i]:
+                    self.views.setdefault((scene, i), []).append(int(np.argmax(lab)) != c)
+                else:
+                    self.views.setdefault((scene, i), []).append(False)
             md = float(np.median(d[m]))
             for key in (("dist", distance_band(md)), ("size", size_band(int(gsize[i])))):
                 self.gt[key] += 1
@@ -163,6 +177,7 @@ class Scorer:
                     for k in sorted(b, key=_band_order) if k[0] == kind}
 
         segs = sum(v for k, v in self.seg.items() if k[0] == "dist")
+        multi = [v for v in self.views.values() if len(v) >= 3]
         secs = np.array(self.seconds) * 1e3
         return {
             "frames": self.frames,
@@ -182,6 +197,15 @@ class Scorer:
             "fp_per_frame": self.fp["all"] / max(self.frames, 1),
             "fp_background_per_frame": self.fp["background"] / max(self.frames, 1),
             "fp_goal_per_frame": self.fp["goal"] / max(self.frames, 1),
+            "persistence": {
+                "objects": len(multi),
+                "views": sum(len(v) for v in multi),
+                "mislabelled_views": round(sum(sum(v) for v in multi)
+                                           / max(sum(len(v) for v in multi), 1), 4),
+                "mislabelled_in_most_views": round(
+                    sum(sum(v) * 2 > len(v) for v in multi) / max(len(multi), 1), 4),
+                "mislabelled_in_all_views": round(
+                    sum(all(v) for v in multi) / max(len(multi), 1), 4)},
             "confusion_pairs": [[t, p, n] for (t, p), n in self.pairs.most_common(15)],
             "pixel_confusions": pixel_confusions(self.conf),
             "ms_per_frame": {"median": round(float(np.median(secs)), 3) if len(secs) else None,
@@ -217,7 +241,7 @@ def score(segmenter, frames: Frames, min_pixels: int = 20,
         rgb, depth, sem = frames.rgb[k], frames.depth[k], frames.semantic[k]
         t = time.perf_counter()
         out = segmenter(rgb, depth, sem)
-        sc.add(out, depth, sem, time.perf_counter() - t)
+        sc.add(out, depth, sem, time.perf_counter() - t, frames.scenes[k])
         if progress is not None:
             progress(k + 1)
     return sc
