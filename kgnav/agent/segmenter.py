@@ -754,9 +754,10 @@ def register_segmenter(*names: str):
     return deco
 
 
-for _key in (*SEGMENTER_PRESETS, *_PRESET_NAMES.values()):
-    _preset = {v: k for k, v in _PRESET_NAMES.items()}.get(_key, _key)
-    register_segmenter(_key)(functools.partial(NoisySegmenter, _preset))
+for _key in SEGMENTER_PRESETS:
+    register_segmenter(_key)(functools.partial(NoisySegmenter, _key))
+for _key, _reported in _PRESET_NAMES.items():  # the names the segmenters report, after
+    SEGMENTERS[_reported] = SEGMENTERS[_key]
 
 
 def make_segmenter(name: str, seed: int = 0, **params) -> Segmenter:
