@@ -41,6 +41,7 @@ bench: $(STAMP)
 	$(PY) bench/bench_sim.py
 	$(PY) bench/bench_agent.py
 	$(PY) bench/bench_encoder.py
+	$(PY) bench/bench_segmenter.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check kgnav tests queries bench

@@ -349,6 +349,10 @@ def _register() -> None:
         return
     app.add_command(train_encoder)
     app.add_command(relocation_bench)
+    from kgnav.cli_segnet import segmenter_bench, train_segmenter
+
+    app.add_command(train_segmenter)
+    app.add_command(segmenter_bench)
 
 
 _register()

@@ -7,50 +7,29 @@ errors :class:`~kgnav.errors.KgnavError` (exit 1), each reported as one line.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import click
 
+from kgnav.cli_training import (
+    DEVICE,
+    OUT_FILE,
+    device_option,
+    finished,
+    prepare,
+    run_training,
+    set_threads,
+    training_options,
+)
 from kgnav.errors import KgnavError
 from kgnav.sim.episodes import SPLITS
 
 #: Where the shipped threshold was calibrated (the first generator's val houses).
 CALIBRATION_SPLIT = "val-small"
-_OUT_FILE = click.Path(dir_okay=False, path_type=Path)
-_DEVICE = click.Choice(["auto", "cpu", "cuda"])
-
-
-def _device(value: str) -> str:
-    from kgnav.encoder.extractor import resolve_device
-
-    try:
-        return str(resolve_device(value))
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--device") from None
-
-
-def _writable_file(path: Path, hint: str) -> None:
-    parent = path.parent if str(path.parent) else Path(".")
-    if path.is_dir():
-        raise click.BadParameter(f"{path} is a directory", param_hint=hint)
-    if parent.exists() and not parent.is_dir():
-        raise click.BadParameter(f"{parent} is not a directory", param_hint=hint)
-    probe = parent
-    while not probe.exists():
-        probe = probe.parent
-    if not os.access(probe, os.W_OK):
-        raise click.BadParameter(f"cannot write under {probe}", param_hint=hint)
-
-
-def _one_thread(threads: int) -> None:
-    import torch
-
-    torch.set_num_threads(threads)
 
 
 @click.command("train-encoder")
-@click.option("--out", "out", type=_OUT_FILE, required=True,
+@click.option("--out", "out", type=OUT_FILE, required=True,
               help="Where to write the weights (.npz).")
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0),
               help="Seed of the initial weights and of every batch.")
@@ -65,24 +44,17 @@ def _one_thread(threads: int) -> None:
               help="Train houses drawn per batch.")
 @click.option("--places-per-house", default=8, show_default=True, type=click.IntRange(min=1),
               help="Places per house per batch (each seen from 3 views).")
-@click.option("--time-budget", type=click.FloatRange(min=0, min_open=True), metavar="MIN",
-              help="Stop after this many minutes of training (checkpointed; --resume goes on).")
-@click.option("--resume", is_flag=True, help="Continue from --checkpoint.")
-@click.option("--checkpoint", type=_OUT_FILE,
-              help="Training checkpoint [default: --out with suffix .ckpt].")
-@click.option("--checkpoint-every", default=100, show_default=True,
-              type=click.IntRange(min=1), help="Steps between checkpoints.")
 @click.option("--calibrate-pairs", default=2000, show_default=True, type=click.IntRange(min=0),
               help="Val places to calibrate the match threshold on (0: keep the paper's 0.3).")
-@click.option("--device", default="auto", show_default=True, type=_DEVICE,
-              help="auto: cuda when available, else cpu.")
-@click.option("--threads", default=1, show_default=True, type=click.IntRange(min=1),
-              help="CPU threads (results are reproducible for a given thread count).")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.option("--split", default="train-small", show_default=True,
+              type=click.Choice([s for s in SPLITS if s.startswith("train")]),
+              help="Houses to train on (the shipped weights: train-small).")
+@training_options(threads_default=1)
 def train_encoder(out: Path, seed: int, dim: int, steps: int, objective: str,
-                  houses_per_batch: int, places_per_house: int, time_budget: float | None,
-                  resume: bool, checkpoint: Path | None, checkpoint_every: int,
-                  calibrate_pairs: int, device: str, threads: int, quiet: bool) -> None:
+                  houses_per_batch: int, places_per_house: int, split: str,
+                  time_budget: float | None, resume: bool, checkpoint: Path | None,
+                  checkpoint_every: int, calibrate_pairs: int, device: str, threads: int,
+                  quiet: bool) -> None:
     """Train the state-feature encoder on the train houses; write weights with metadata.
 
     The same --seed, --steps, --dim and --objective give the same weights (CPU, same
@@ -93,29 +65,13 @@ def train_encoder(out: Path, seed: int, dim: int, steps: int, objective: str,
 
     from kgnav.encoder.train import TrainConfig, Trainer
 
-    _writable_file(out, "--out")
-    ckpt = checkpoint or out.with_suffix(".ckpt")
-    _writable_file(ckpt, "--checkpoint")
-    if resume and not ckpt.is_file():
-        raise click.BadParameter(f"no checkpoint at {ckpt} to resume from",
-                                 param_hint="--resume")
-    dev = _device(device)
-    _one_thread(threads)
+    ckpt, dev = prepare(out, checkpoint, resume, device, threads)
     cfg = TrainConfig(seed=seed, steps=steps, dim=dim, objective=objective,
-                      houses_per_batch=houses_per_batch, places_per_house=places_per_house)
+                      houses_per_batch=houses_per_batch, places_per_house=places_per_house,
+                      split=split)
     trainer = Trainer(cfg, device=dev, threads=threads)
-    if resume:
-        trainer.load_checkpoint(ckpt)
-        click.echo(f"resuming {ckpt} at step {trainer.step}/{steps}", err=True)
-    with tqdm(total=steps, initial=trainer.step, desc=f"train-encoder ({objective})",
-              unit="step", disable=quiet, dynamic_ncols=True, mininterval=1.0) as bar:
-        def progress(step: int, loss: float) -> None:
-            bar.update(step - bar.n)
-            bar.set_postfix(loss=f"{loss:.3f}", refresh=False)
-
-        budget = None if time_budget is None else 60.0 * time_budget
-        trainer.fit(time_budget_s=budget, progress=progress, checkpoint=ckpt,
-                    checkpoint_every=checkpoint_every)
+    run_training(trainer, ckpt, resume, f"train-encoder ({objective})", time_budget,
+                 checkpoint_every, quiet)
     weights = trainer.export()
     if calibrate_pairs:
         from kgnav.encoder.extractor import LearnedEncoder
@@ -140,15 +96,13 @@ def train_encoder(out: Path, seed: int, dim: int, steps: int, objective: str,
             f"pairs of split {CALIBRATION_SPLIT}, {calibrate_pairs} places, seed "
             f"{CALIBRATION_SEED}")
     weights.save(out)
-    state = "done" if trainer.done else "stopped by --time-budget"
-    click.echo(f"{state} at step {trainer.step}/{steps} ({trainer.elapsed_s / 60:.1f} min of "
-               f"training); weights -> {out} (dim {dim}, threshold "
+    click.echo(f"{finished(trainer)}); weights -> {out} (dim {dim}, threshold "
                f"{weights.threshold:.4f}); checkpoint {ckpt}")
     if not trainer.done:
         click.echo(f"continue with: kgnav train-encoder --resume --out {out} --checkpoint "
                    f"{ckpt} --seed {seed} --dim {dim} --steps {steps} --objective {objective} "
                    f"--houses-per-batch {houses_per_batch} --places-per-house "
-                   f"{places_per_house}", err=True)
+                   f"{places_per_house} --split {split}", err=True)
 
 
 def _sampler(split: str):
@@ -205,7 +159,7 @@ def _parse_thresholds(ctx, param, values: tuple[str, ...]) -> dict[str, float]:
               type=click.FloatRange(0, 1, min_open=True), help="Precision the calibration keeps.")
 @click.option("--write-threshold", is_flag=True,
               help="Store kgnav-encoder's threshold calibrated here into --weights.")
-@click.option("--device", default="auto", show_default=True, type=_DEVICE)
+@click.option("--device", default="auto", show_default=True, type=DEVICE)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def relocation_bench(split: str, out_dir: Path, extractors: list[str], pairs: int, seed: int,
                      weights: Path | None, thresholds: dict[str, float], target_precision: float,
@@ -229,7 +183,7 @@ def relocation_bench(split: str, out_dir: Path, extractors: list[str], pairs: in
     if unknown:
         raise click.BadParameter(f"{unknown[0]!r} is not in --extractors",
                                  param_hint="--threshold")
-    dev = _device(device)
+    dev = device_option(device)
     exts = []
     for name in extractors:
         params = {"weights": weights, "device": dev} if name == ENCODER else {}
@@ -239,7 +193,7 @@ def relocation_bench(split: str, out_dir: Path, extractors: list[str], pairs: in
             if "unknown feature extractor" in str(exc):
                 raise click.BadParameter(str(exc), param_hint="--extractors") from None
             raise
-    _one_thread(1)
+    set_threads(1)
     with tqdm(total=3 * pairs, desc=f"rendering {split} views", unit="view", disable=quiet,
               dynamic_ncols=True, mininterval=1.0) as bar:
         ps = build_pairs(_sampler(split), exts, n_pos=pairs, seed=seed,

@@ -79,8 +79,9 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
                    "--scenes-dir).")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
               help="Processes; results are identical to one.")
-@click.option("--segmenter", type=click.Choice(sorted(SEGMENTER_PRESETS)), default="default",
-              show_default=True, help="Segmenter noise preset ('clean': ground truth).")
+@click.option("--segmenter", type=click.Choice(["learned", *sorted(SEGMENTER_PRESETS)]),
+              default="learned", show_default=True,
+              help="learned: the RGB-D network; or a noise preset on ground truth ('clean').")
 @click.option("--extractor", default="auto", show_default=True,
               help="State features: kgnav-encoder, opencv-gist, or auto (the encoder if it "
                    "loads).")

@@ -38,9 +38,11 @@ stable hash of ``(seed, scene, instance id)``, so they survive across episodes i
 from __future__ import annotations
 
 import bisect
+import functools
+import importlib
 import math
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import Protocol, runtime_checkable
 
@@ -54,12 +56,14 @@ from kgnav.sim.render import HFOV_DEG, MAX_DEPTH, MIN_DEPTH
 __all__ = [
     "CONFUSIONS",
     "NoisySegmenter",
+    "SEGMENTERS",
     "SEGMENTER_PRESETS",
     "Segment",
     "Segmentation",
     "Segmenter",
     "SegmenterNoise",
     "make_segmenter",
+    "register_segmenter",
 ]
 
 
@@ -731,13 +735,39 @@ def _desc(a: object) -> str:
     return f"{a.dtype} {a.shape}" if isinstance(a, np.ndarray) else type(a).__name__
 
 
-def make_segmenter(name: str, seed: int = 0) -> Segmenter:
-    """A segmenter by name: a preset of :data:`SEGMENTER_PRESETS` (``clean``, ``default``,
-    ``heavy``) or the name such a segmenter reports (``gt-clean``, ``gt-noisy``, ``gt-heavy``).
+#: Segmenter factories by name, ``factory(seed=..., **params)``; :func:`register_segmenter` adds
+#: one. The noise presets are here; ``learned`` (the RGB-D network) registers on first use.
+SEGMENTERS: dict[str, Callable[..., Segmenter]] = {}
+# modules that register segmenters on import, imported on the first unknown name so that the
+# ground-truth segmenters do not pull in torch
+_PLUGINS = ("kgnav.segnet.segmenter",)
+
+
+def register_segmenter(*names: str):
+    """Decorator adding a segmenter factory under one or more names to :data:`SEGMENTERS`."""
+
+    def deco(factory):
+        for n in names:
+            SEGMENTERS[n] = factory
+        return factory
+
+    return deco
+
+
+for _key in SEGMENTER_PRESETS:
+    register_segmenter(_key)(functools.partial(NoisySegmenter, _key))
+for _key, _reported in _PRESET_NAMES.items():  # the names the segmenters report, after
+    SEGMENTERS[_reported] = SEGMENTERS[_key]
+
+
+def make_segmenter(name: str, seed: int = 0, **params) -> Segmenter:
+    """A segmenter by name: ``learned`` (the RGB-D network, :mod:`kgnav.segnet`), a preset of
+    :data:`SEGMENTER_PRESETS` (``clean``, ``default``, ``heavy``), the name a segmenter reports
+    (``kgnav-segnet``, ``gt-clean``, ``gt-noisy``, ``gt-heavy``) or any registered name.
     """
-    alias = {v: k for k, v in _PRESET_NAMES.items()}
-    key = alias.get(name, name)
-    if key not in SEGMENTER_PRESETS:
-        known = ", ".join([*SEGMENTER_PRESETS, *alias])
-        raise KgnavError(f"unknown segmenter {name!r} (known: {known})")
-    return NoisySegmenter(key, seed)
+    if name not in SEGMENTERS:
+        for mod in _PLUGINS:
+            importlib.import_module(mod)
+    if name not in SEGMENTERS:
+        raise KgnavError(f"unknown segmenter {name!r} (known: {', '.join(SEGMENTERS)})")
+    return SEGMENTERS[name](seed=seed, **params)

@@ -21,11 +21,7 @@ one, since the checkpoint holds the model, the optimizer and the step.
 from __future__ import annotations
 
 import math
-import os
-import time
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -43,17 +39,16 @@ from kgnav.encoder.views import (
     relation_matrix,
 )
 from kgnav.encoder.weights import PAPER_THRESHOLD, EncoderWeights, EncoderWeightsError
+from kgnav.training import SeededTrainer, TrainingConfig, cosine_lr
 
 OBJECTIVES = ("contrastive", "autoencoder")
 CHECKPOINT_FORMAT = "kgnav-encoder-checkpoint"
 
 
 @dataclass(frozen=True)
-class TrainConfig:
+class TrainConfig(TrainingConfig):
     """Everything that determines a training run (recorded in checkpoints and weight files)."""
 
-    seed: int = 0
-    steps: int = 2000
     dim: int = 128
     objective: str = "contrastive"
     houses_per_batch: int = 8
@@ -61,12 +56,7 @@ class TrainConfig:
     temperature: float = 0.1
     shift_frac: float = 0.5  # share of hard negatives that are moved (the rest are turned)
     shift_max: float = 2.0  # m, farthest move of a moved hard negative (from just over 1 m)
-    lr: float = 2e-3
-    weight_decay: float = 1e-4
-    warmup: int = 50
     split: str = "train-small"  # the houses the shipped weights were trained on
-    n_houses: int = 20  # the first n houses of the split
-    input_size: tuple[int, int] = (80, 60)
     channels: tuple[int, ...] = (16, 32, 64, 128)
 
     def __post_init__(self):
@@ -82,22 +72,10 @@ class TrainConfig:
         return Arch(dim=self.dim, input_size=tuple(self.input_size),
                     channels=tuple(self.channels))
 
-    def to_dict(self) -> dict:
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
-
-    @classmethod
-    def from_dict(cls, d: dict) -> TrainConfig:
-        known = {f.name for f in fields(cls)}
-        kw = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in known}
-        return cls(**kw)
-
 
 def lr_at(cfg: TrainConfig, step: int) -> float:
     """Linear warm-up, then cosine decay to zero at ``cfg.steps``."""
-    if step < cfg.warmup:
-        return cfg.lr * (step + 1) / cfg.warmup
-    span = max(cfg.steps - cfg.warmup, 1)
-    return 0.5 * cfg.lr * (1 + math.cos(math.pi * min((step - cfg.warmup) / span, 1.0)))
+    return cosine_lr(cfg.lr, cfg.warmup, cfg.steps, step)
 
 
 def supcon_loss(z: torch.Tensor, rel: np.ndarray, temperature: float) -> torch.Tensor:
@@ -114,18 +92,19 @@ def supcon_loss(z: torch.Tensor, rel: np.ndarray, temperature: float) -> torch.T
     return per.mean()
 
 
-class Trainer:
+class Trainer(SeededTrainer):
     """Trains a :class:`ConvEncoder` per a :class:`TrainConfig`; ``fit`` returns ``self``.
 
     ``sampler`` defaults to the houses of ``config.split``; pass one to train elsewhere. The
-    current step is :attr:`step`; :meth:`save_checkpoint` / :meth:`load_checkpoint` persist it.
+    loop, checkpoints and resume are :class:`~kgnav.training.SeededTrainer`'s.
     """
+
+    checkpoint_format = CHECKPOINT_FORMAT
+    error = EncoderWeightsError
 
     def __init__(self, config: TrainConfig, device: str = "cpu",
                  sampler: ViewSampler | None = None, threads: int = 1):
-        self.config = config
-        self.device = torch.device(device)
-        self.threads = threads
+        super().__init__(config, device, threads)
         self._sampler = sampler
         torch.manual_seed(config.seed)
         self.net = ConvEncoder(config.arch, batchnorm=True).to(self.device)
@@ -135,9 +114,9 @@ class Trainer:
             self.decoder = Decoder(config.arch).to(self.device)
             params += list(self.decoder.parameters())
         self.opt = torch.optim.AdamW(params, lr=config.lr, weight_decay=config.weight_decay)
-        self.step = 0
-        self.elapsed_s = 0.0  # training time over all sessions (checkpoints carry it)
-        self.last_loss = math.nan
+
+    def modules(self):
+        return {"net": self.net, "decoder": self.decoder}
 
     @property
     def sampler(self) -> ViewSampler:
@@ -176,23 +155,11 @@ class Trainer:
         return np.stack(frames), np.array(houses), np.array(poses, float)
 
     # ------------------------------------------------------------------ optimisation
-    def train_step(self) -> float:
-        """One optimisation step on the batch of :attr:`step`; returns the loss."""
-        # the thread count changes float reduction order: pin it so that steps taken here and
-        # inside fit() give the same weights
-        prev = torch.get_num_threads()
-        torch.set_num_threads(self.threads)
-        try:
-            return self._train_step()
-        finally:
-            torch.set_num_threads(prev)
-
     def _train_step(self) -> float:
         c = self.config
         frames, houses, poses = self.batch(self.step)
         x = to_tensor(frames).to(self.device)
-        for g in self.opt.param_groups:
-            g["lr"] = lr_at(c, self.step)
+        self.set_lr()
         self.net.train()
         z = self.net(x)
         if c.objective == "contrastive":
@@ -200,86 +167,7 @@ class Trainer:
                                c.temperature)
         else:
             loss = F.mse_loss(self.decoder(z), x)
-        self.opt.zero_grad(set_to_none=True)
-        loss.backward()
-        self.opt.step()
-        self.step += 1
-        self.last_loss = float(loss.detach())
-        return self.last_loss
-
-    def fit(self, time_budget_s: float | None = None,
-            progress: Callable[[int, float], None] | None = None,
-            checkpoint: str | os.PathLike[str] | None = None,
-            checkpoint_every: int = 100) -> Trainer:
-        """Train until ``config.steps`` or until ``time_budget_s`` of this session is spent.
-
-        ``progress(step, loss)`` is called after every step. With ``checkpoint``, a checkpoint
-        is written every ``checkpoint_every`` steps and when training stops.
-        """
-        prev = torch.get_num_threads()
-        torch.set_num_threads(self.threads)
-        t0 = time.monotonic()
-        last = t0
-        try:
-            while self.step < self.config.steps:
-                if time_budget_s is not None and time.monotonic() - t0 >= time_budget_s:
-                    break
-                loss = self.train_step()
-                now = time.monotonic()
-                self.elapsed_s += now - last
-                last = now
-                if progress is not None:
-                    progress(self.step, loss)
-                if checkpoint is not None and self.step % checkpoint_every == 0:
-                    self.save_checkpoint(checkpoint)
-        finally:
-            torch.set_num_threads(prev)
-        if checkpoint is not None:
-            self.save_checkpoint(checkpoint)
-        return self
-
-    @property
-    def done(self) -> bool:
-        return self.step >= self.config.steps
-
-    # ------------------------------------------------------------------ persistence
-    def save_checkpoint(self, path: str | os.PathLike[str]) -> Path:
-        """Write model, optimizer, step and config (atomically)."""
-        from kgnav.atomic import atomic_open
-
-        state = {
-            "format": CHECKPOINT_FORMAT,
-            "config": self.config.to_dict(),
-            "step": self.step,
-            "elapsed_s": self.elapsed_s,
-            "net": self.net.state_dict(),
-            "decoder": None if self.decoder is None else self.decoder.state_dict(),
-            "optim": self.opt.state_dict(),
-        }
-        with atomic_open(path, "wb") as fh:
-            torch.save(state, fh)
-        return Path(path)
-
-    def load_checkpoint(self, path: str | os.PathLike[str]) -> Trainer:
-        """Continue from a checkpoint of a run with the same configuration (``steps`` may
-        differ: the learning-rate schedule then follows the new ``steps``)."""
-        state = read_checkpoint(path)
-        theirs = TrainConfig.from_dict(state["config"])
-        mine = self.config
-        diff = [f"{k}={getattr(theirs, k)!r} (not {getattr(mine, k)!r})"
-                for k in mine.to_dict() if k != "steps" and getattr(theirs, k) != getattr(mine, k)]
-        if diff:
-            raise EncoderWeightsError(path, "checkpoint of another run: " + ", ".join(diff))
-        try:
-            self.net.load_state_dict(state["net"])
-            if self.decoder is not None:
-                self.decoder.load_state_dict(state["decoder"])
-            self.opt.load_state_dict(state["optim"])
-        except (RuntimeError, KeyError, ValueError, TypeError) as exc:
-            raise EncoderWeightsError(path, f"checkpoint does not fit the model ({exc})") from None
-        self.step = int(state["step"])
-        self.elapsed_s = float(state.get("elapsed_s", 0.0))
-        return self
+        return self.optimise(loss)
 
     def export(self, threshold: float = PAPER_THRESHOLD,
                threshold_source: str = "paper default (not calibrated)") -> EncoderWeights:
@@ -288,29 +176,6 @@ class Trainer:
 
         self.net.eval()
         params = {k: v.cpu().numpy() for k, v in fold_batchnorm(self.net).items()}
-        c = self.config
-        meta = {
-            "threshold": float(threshold),
-            "threshold_source": threshold_source,
-            "train": {**c.to_dict(), "train_steps": self.step, "complete": self.done,
-                      "train_seconds": round(self.elapsed_s, 1), "threads": self.threads,
-                      "torch": torch.__version__},
-        }
-        return EncoderWeights(c.arch, params, meta)
-
-
-def read_checkpoint(path: str | os.PathLike[str]) -> dict:
-    """Load a training checkpoint (tensors and plain data only), or raise
-    :class:`EncoderWeightsError`."""
-    path = Path(path)
-    if not path.is_file():
-        raise EncoderWeightsError(path, "no such checkpoint")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        msg = str(exc).strip().splitlines()
-        why = f"{type(exc).__name__}: {msg[0]}" if msg else type(exc).__name__
-        raise EncoderWeightsError(path, f"not a readable checkpoint ({why})") from None
-    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
-        raise EncoderWeightsError(path, "not a kgnav encoder training checkpoint")
-    return state
+        meta = {"threshold": float(threshold), "threshold_source": threshold_source,
+                "train": self.train_meta()}
+        return EncoderWeights(self.config.arch, params, meta)

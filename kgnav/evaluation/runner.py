@@ -66,7 +66,7 @@ class EvalConfig:
     scenes: int | None = None
     episodes: int | None = None
     workers: int = 1
-    segmenter: str = "default"
+    segmenter: str = "learned"
     extractor: str = "auto"
     threshold: float | None = None
     seed: int = 0
@@ -381,12 +381,16 @@ def _map(fn: Callable, tasks: list, workers: int, bar) -> list:
 
 
 def _worker_init() -> None:
-    try:
-        import torch
+    _torch_threads(1)
 
-        torch.set_num_threads(1)
-    except ImportError:  # pragma: no cover - torch is a dependency
-        pass
+
+def _torch_threads(n: int) -> int:
+    """Set torch's intra-op threads; returns the previous count."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    return before
 
 
 class _NoBar:
@@ -637,6 +641,7 @@ def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = Tr
 
     records: list[dict] = []
     timing = {}
+    threads = _torch_threads(1)  # the networks run best on one thread per process
     try:
         for name in cfg.variants:
             t0 = time.perf_counter()
@@ -649,6 +654,7 @@ def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = Tr
                 timing[name]["memory"] = memory
             records.extend(recs)
     finally:
+        _torch_threads(threads)
         if part is not None:
             part.close()
     summary = summarize(records, cfg.seed)
