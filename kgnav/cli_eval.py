@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from kgnav.agent.segmenter import SEGMENTER_PRESETS
+from kgnav.evaluation.engines import ENGINES
 from kgnav.evaluation.failures import FAILURE_CLASSES
 from kgnav.evaluation.variants import VARIANTS
 from kgnav.sim.episodes import SPLITS
@@ -78,7 +79,15 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
               help="Episodes per scene (default: the split's, 100 for val; all of a "
                    "--scenes-dir).")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
-              help="Processes; results are identical to one.")
+              help="Processes (with --engine ray: the CPUs of the Ray instance it starts); "
+                   "results are identical to one.")
+@click.option("--engine", type=click.Choice(list(ENGINES)), default="local",
+              show_default=True,
+              help="Where episodes run: local processes, or Ray tasks (pip install "
+                   "'kgnav[ray]'); results are identical.")
+@click.option("--address", default=None, metavar="ADDR",
+              help="With --engine ray: join the Ray cluster at ADDR (HOST:PORT, 'auto' or "
+                   "ray://HOST:PORT) instead of starting Ray here.")
 @click.option("--segmenter", type=click.Choice(["learned", *sorted(SEGMENTER_PRESETS)]),
               default="learned", show_default=True,
               help="learned: the RGB-D network; or a noise preset on ground truth ('clean').")
@@ -103,16 +112,18 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
                    "or the paper's own.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--quiet", is_flag=True, help="No progress bars.")
-def eval_cmd(split, scenes_dir, variants, out_dir, scenes, episodes, workers, segmenter,
-             extractor, threshold, pre_explore_steps, show, noise, preset, seed, quiet) -> None:
+def eval_cmd(split, scenes_dir, variants, out_dir, scenes, episodes, workers, engine, address,
+             segmenter, extractor, threshold, pre_explore_steps, show, noise, preset, seed,
+             quiet) -> None:
     """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
     from kgnav.agent.loop import PRESETS
     from kgnav.evaluation.runner import EvalConfig, run_eval
 
     cfg = EvalConfig(split=split, scenes_dir=None if scenes_dir is None else str(scenes_dir),
                      variants=variants, scenes=scenes, episodes=episodes,
-                     workers=workers, segmenter=segmenter, extractor=extractor,
-                     threshold=threshold, seed=seed, pre_explore_steps=pre_explore_steps,
+                     workers=workers, engine=engine, address=address, segmenter=segmenter,
+                     extractor=extractor, threshold=threshold, seed=seed,
+                     pre_explore_steps=pre_explore_steps,
                      show=show, actuation_noise=noise[0], odometry_noise=noise[1],
                      agent=PRESETS[preset](), forget_below=0.2 if preset == "default" else 0.0,
                      preset=preset)

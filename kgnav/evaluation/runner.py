@@ -4,8 +4,9 @@ Episode order (fixed, so results are reproducible): rounds ``r = 0, 1, ...``; ro
 episode ``r`` of every selected scene, scenes in index order. Variants with memory see, during a
 round, the store as it was at the round's start; at the round's end each episode's model is
 merged into the model it relocated into (or stored as a new model), in scene order. Scenes of a
-round are independent, so ``workers`` processes may run them in parallel with results identical
-to one process. Every episode is seeded from ``(seed, scene, episode)``: all variants meet the
+round are independent, so an engine (:mod:`kgnav.evaluation.engines`: ``workers`` local
+processes, or Ray on a cluster) may run them in parallel with results identical to one
+process. Every episode is seeded from ``(seed, scene, episode)``: all variants meet the
 same segmenter noise, which makes their comparison paired.
 
 >>> cfg = EvalConfig(split="val", variants=("oracle",), scenes=1, episodes=1)
@@ -18,8 +19,8 @@ from __future__ import annotations
 
 import json
 import math
-import multiprocessing as mp
 import os
+import tempfile
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field, replace
@@ -38,6 +39,7 @@ from kgnav.agent.segmenter import make_segmenter
 from kgnav.atomic import atomic_open
 from kgnav.errors import KgnavError
 from kgnav.evaluation import fidelity
+from kgnav.evaluation.engines import Engine, check_settings, make_engine
 from kgnav.evaluation.failures import FAILURE_CLASSES, classify
 from kgnav.evaluation.sources import SceneSource, scene_source
 from kgnav.evaluation.stats import paired_differences
@@ -58,7 +60,10 @@ class EvalConfig:
     (``kgnav scenes generate``); ``scenes``: the first K scenes (None: all); ``episodes``: per
     scene (None: the split's default, or all of a directory's); ``threshold``: relocation
     cosine distance (None: the extractor's calibrated value); ``actuation_noise`` /
-    ``odometry_noise``: the simulator's motion and pose-sensor noise (off, as in ObjectNav)."""
+    ``odometry_noise``: the simulator's motion and pose-sensor noise (off, as in ObjectNav).
+    ``workers``, ``engine`` and ``address`` (:data:`EXECUTION`) say how to run it, never
+    what comes out: ``engine`` ``local`` (``workers`` processes) or ``ray`` (a Ray instance
+    with ``workers`` CPUs, or the cluster at ``address``)."""
 
     split: str = "val"
     scenes_dir: str | None = None
@@ -80,6 +85,8 @@ class EvalConfig:
     preset: str = "default"  # the name of the agent settings (recorded in config.json)
     show: tuple[int, int] | None = None  # (scene, episode) to draw from above per variant
     agent: AgentConfig = field(default_factory=AgentConfig)
+    engine: str = "local"
+    address: str | None = None
 
     def __post_init__(self):
         if self.scenes_dir is None and self.split not in SPLITS:
@@ -89,8 +96,7 @@ class EvalConfig:
         for v in self.variants:
             if v not in VARIANTS:
                 raise KgnavError(f"unknown variant {v!r} (known: {', '.join(VARIANTS)})")
-        if self.workers < 1:
-            raise KgnavError(f"workers must be at least 1, got {self.workers}")
+        check_settings(self.engine, self.workers, self.address)
 
     @property
     def source(self) -> SceneSource:
@@ -109,6 +115,11 @@ class EvalConfig:
         return list(range(min(self.scenes, n) if self.scenes else n))
 
 
+#: The fields of :class:`EvalConfig` that say how a run executes; they never change its results
+#: (``config.json`` keeps them apart, under ``execution``).
+EXECUTION = ("workers", "engine", "address")
+
+
 def resolve_extractor(name: str) -> str:
     """``auto`` → the shipped learned encoder when it loads, else the OpenCV descriptor."""
     if name != "auto":
@@ -125,8 +136,8 @@ def episode_seed(seed: int, scene: int, episode: int) -> int:
 
 
 # ---------------------------------------------------------------------- per-process state
-# Worker processes are forked per round, so they inherit the parent's environments and the
-# round's memory without pickling them.
+# Environments and extractors are kept per process (forked workers inherit them); ``_ROUND`` is
+# the round's context (memory snapshot, co-occurrence) an engine hands each task.
 _CACHE: dict = {}
 _ROUND: dict = {}
 
@@ -185,6 +196,7 @@ class Outcome:
     matched: str | None = None
     bridges: dict = field(default_factory=dict)
     seen: set = field(default_factory=set)
+    files: dict = field(default_factory=dict)  # path -> bytes, for the caller to write
 
 
 #: An instance counts as seen by an episode when this many of its pixels lie within SEEN_RANGE.
@@ -324,8 +336,19 @@ def _relocation_error(env: ObjectNavEnv, model_id: str, transform, at) -> dict:
             "error_deg": round(math.degrees(se2.angle_diff(transform[2], truth[2])), 2)}
 
 
-def _run_task(task) -> Outcome:
-    return run_episode(*task)
+def _run_task(context: dict, task) -> Outcome:
+    """An episode with the round's ``context``; its picture from above comes back as bytes
+    (it may run on another machine) for :func:`run_variant` to write."""
+    _ROUND.clear()
+    _ROUND.update(context)
+    *args, topdown = task
+    if topdown is None:
+        return run_episode(*args)
+    with tempfile.TemporaryDirectory() as tmp:
+        png = Path(tmp) / "topdown.png"
+        outcome = run_episode(*args, topdown=str(png))
+        outcome.files[topdown] = png.read_bytes()
+    return outcome
 
 
 def pre_explore(cfg: EvalConfig, scene: int, extractor_name: str
@@ -358,28 +381,11 @@ def pre_explore(cfg: EvalConfig, scene: int, extractor_name: str
     return agent.model_, seen
 
 
-def _pre_task(task) -> tuple[AbstractModel, set[int]]:
+def _pre_task(_context, task) -> tuple[AbstractModel, set[int]]:
     return pre_explore(*task)
 
 
 # ---------------------------------------------------------------------- scheduling
-def _map(fn: Callable, tasks: list, workers: int, bar) -> list:
-    """``[fn(t) for t in tasks]``, in forked worker processes when ``workers > 1``."""
-    if workers <= 1 or len(tasks) <= 1:
-        out = []
-        for t in tasks:
-            out.append(fn(t))
-            bar.update(1)
-        return out
-    ctx = mp.get_context("fork")
-    with ctx.Pool(min(workers, len(tasks)), initializer=_worker_init) as pool:
-        out = []
-        for r in pool.imap(fn, tasks):
-            out.append(r)
-            bar.update(1)
-        return out
-
-
 def _worker_init() -> None:
     _torch_threads(1)
 
@@ -415,10 +421,14 @@ def _episode_count(cfg: EvalConfig) -> list[int]:
 
 
 def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Path | None,
-                progress: bool = True, on_round: Callable[[list[dict]], None] | None = None
-                ) -> tuple[list[dict], dict | None]:
-    """All episodes of one variant, in the documented order; returns their records and, for
-    a variant with memory, the fidelity of its memory at the end (:func:`memory_fidelity`)."""
+                progress: bool = True, on_round: Callable[[list[dict]], None] | None = None,
+                engine: Engine | None = None) -> tuple[list[dict], dict | None]:
+    """All episodes of one variant, in the documented order, each round's on ``engine``
+    (default: one made from ``cfg`` for this call); returns their records and, for a variant
+    with memory, the fidelity of its memory at the end (:func:`memory_fidelity`)."""
+    if engine is None:
+        with make_engine(cfg.engine, cfg.workers, cfg.address, _worker_init) as engine:
+            return run_variant(cfg, variant, extractor_name, out, progress, on_round, engine)
     scenes = cfg.scene_indices
     counts = dict(zip(scenes, _episode_count(cfg), strict=True))
     rounds = max(counts.values())
@@ -426,7 +436,7 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
     models: dict[str, AbstractModel] = {}
     seen: dict[str, set[int]] = {}  # per house, the real instances its episodes saw
     if variant.memory == "pre":
-        models, seen = _pre_explored(cfg, extractor_name, out, progress)
+        models, seen = _pre_explored(cfg, extractor_name, out, progress, engine)
     if store_dir is not None:
         _clear_store(store_dir)
     store = ModelStore(store_dir) if store_dir is not None else None
@@ -436,14 +446,18 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
     try:
         for r in range(rounds):
             if r == 0 or variant.learns:  # pre-explored memories never change: index once
-                _ROUND.clear()
+                context = {}
                 if variant.memory:
-                    _ROUND["memory"] = Memory(models, threshold=threshold)
+                    context["memory"] = Memory(models, threshold=threshold)
                 if variant.policy == "semantic":
-                    _ROUND["cooccurrence"] = cooccurrence(models.values())
+                    context["cooccurrence"] = cooccurrence(models.values())
             tasks = [(cfg, variant, s, r, r, extractor_name, _topdown_path(cfg, out, variant, s, r))
                      for s in scenes if r < counts[s]]
-            outcomes = _map(_run_task, tasks, cfg.workers, bar)
+            outcomes = engine.map(_run_task, tasks, context, bar)
+            for o in outcomes:
+                for path, data in o.files.items():
+                    Path(path).parent.mkdir(parents=True, exist_ok=True)
+                    Path(path).write_bytes(data)
             round_records = [o.record for o in outcomes]
             if variant.learns:
                 for o in outcomes:  # merges in scene order: the same with any worker count
@@ -517,8 +531,8 @@ def _clear_store(path: Path) -> None:
             f.unlink()
 
 
-def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progress: bool
-                  ) -> dict[str, AbstractModel]:
+def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progress: bool,
+                  engine: Engine) -> dict[str, AbstractModel]:
     """The hp/sp memory: one pre-explored model per house, built once per output directory."""
     key = json.dumps({"split": cfg.source_name, "scenes": cfg.scene_indices, "seed": cfg.seed,
                       "forget": cfg.forget_below, "agent": asdict(cfg.agent),
@@ -544,7 +558,7 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
         bar = _bar(len(cfg.scene_indices), "pre-explore", progress)
         try:
             tasks = [(cfg, s, extractor_name) for s in cfg.scene_indices]
-            for m, saw in _map(_pre_task, tasks, cfg.workers, bar):
+            for m, saw in engine.map(_pre_task, tasks, {}, bar):
                 if cfg.forget_below > 0:
                     forget(m, cfg.forget_below)
                 models[m.model_id] = m
@@ -626,6 +640,7 @@ def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = Tr
     Returns (records, summary)."""
     extractor_name = resolve_extractor(cfg.extractor)
     out_dir = Path(out) if out is not None else None
+    engine = make_engine(cfg.engine, cfg.workers, cfg.address, _worker_init)
     part = None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -646,14 +661,16 @@ def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = Tr
         for name in cfg.variants:
             t0 = time.perf_counter()
             recs, memory = run_variant(cfg, VARIANTS[name], extractor_name, out_dir, progress,
-                                       write)
+                                       write, engine)
             dt = time.perf_counter() - t0
             timing[name] = {"seconds": round(dt, 2),
                             "episodes_per_second": round(len(recs) / dt, 4) if dt > 0 else None}
             if memory is not None:
                 timing[name]["memory"] = memory
             records.extend(recs)
+        execution = {**{k: getattr(cfg, k) for k in EXECUTION}, **engine.describe()}
     finally:
+        engine.close()
         _torch_threads(threads)
         if part is not None:
             part.close()
@@ -665,7 +682,9 @@ def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = Tr
         with atomic_open(out_dir / "summary.json", "w") as f:
             json.dump(summary, f, indent=2, sort_keys=True)
         with atomic_open(out_dir / "config.json", "w") as f:
-            json.dump({**asdict(cfg), "extractor": extractor_name}, f, indent=2, sort_keys=True)
+            settings = {k: v for k, v in asdict(cfg).items() if k not in EXECUTION}
+            json.dump({**settings, "extractor": extractor_name, "execution": execution}, f,
+                      indent=2, sort_keys=True)
         write_plots(records, summary, cfg, out_dir)
     return records, summary
 
