@@ -26,6 +26,7 @@ import argparse
 import json
 import os
 import pickle
+import resource
 import subprocess
 import sys
 import tempfile
@@ -61,7 +62,10 @@ def one_run(args) -> None:
     _records, summary = run_eval(_config(args, engine, int(workers)), out, progress=False)
     wall = time.perf_counter() - t0
     episodes = sum(s["episodes"] for s in summary.values())
-    print(json.dumps({"wall": wall, "episodes": episodes,
+    # CPU time of this process and the local engine's forked workers (not Ray's: not ours)
+    cpu = sum(getattr(resource.getrusage(w), f) for w in (resource.RUSAGE_SELF,
+              resource.RUSAGE_CHILDREN) for f in ("ru_utime", "ru_stime"))
+    print(json.dumps({"wall": wall, "episodes": episodes, "cpu": cpu,
                       "variant_seconds": {k: s["seconds"] for k, s in summary.items()}}))
 
 
@@ -76,16 +80,17 @@ def throughput(args) -> None:
         res = json.loads(subprocess.run(cmd, check=True, capture_output=True,
                                         text=True).stdout.splitlines()[-1])
         busy = sum(res["variant_seconds"].values())  # the rounds, without engine start/stop
+        cpu = round(res["cpu"] / res["episodes"], 2) if engine == "local" else "–"
         rows.append([f"{engine} x{workers}", res["episodes"], round(res["wall"], 1),
                      round(res["episodes"] / res["wall"], 3), round(res["episodes"] / busy, 3),
-                     round(res["wall"] - busy, 1), f"{load:.1f}"])
+                     round(res["wall"] - busy, 1), cpu, f"{load:.1f}"])
         outs.append((out / "episodes.jsonl").read_bytes())
     same = all(o == outs[0] for o in outs)
     print_table(f"Throughput: {args.split}, {args.scenes} houses x {args.episodes} episodes, "
                 f"{args.variants}, max {args.max_steps} steps, {args.segmenter} segmenter "
                 f"(episodes.jsonl identical on all engines: {same})",
                 ["engine", "episodes", "wall s", "ep/s", "ep/s in rounds",
-                 "outside rounds s", "load avg"], rows)
+                 "outside rounds s", "CPU s/ep", "load avg"], rows)
     per_ep = [(r[2] - r[5]) / r[1] for r in rows]
     print(f"Ray x2 over local x2, per episode (rounds only): {per_ep[2] - per_ep[1]:+.3f} s")
 
@@ -106,14 +111,30 @@ def overhead(args, context_bytes: int = 0) -> None:
 
     n, rows = args.tasks, []
     context = {"memory": np.zeros(max(context_bytes // 4, 1), np.float32)}
-    size = f"{context_bytes / 1e6:.1f} MB context"
+    size = f"{context_bytes / 1e6:.1f} MB array"
+    if args.memory_store:  # a real memory (``--part memory --keep DIR`` writes one)
+        from kgnav.agent.memory import Memory
+        from kgnav.store import ModelStore
+
+        models, problems = ModelStore(Path(args.memory_store) / "memory" / "si").load_all()
+        assert models and not problems, problems
+        context = {"memory": Memory(models, threshold=0.1)}
+        t = time.perf_counter()
+        blob = pickle.dumps(context, protocol=5)
+        rows.append([f"pickle a memory of {len(models)} models, "
+                     f"{sum(m.n_states for m in models.values())} states "
+                     f"({len(blob) / 1e6:.1f} MB)", round((time.perf_counter() - t) * 1000), ""])
+        t = time.perf_counter()
+        pickle.loads(blob)
+        rows.append(["unpickle it", round((time.perf_counter() - t) * 1000), ""])
+        size = f"{len(blob) / 1e6:.1f} MB memory"
     _worker_init()  # as run_eval does: torch imported, one thread (forks inherit both)
     with LocalEngine(2, _worker_init) as local:
         t = time.perf_counter()
         for _ in range(20):  # a round of 11 houses: one fork of 2 processes per round
             local.map(_nothing, range(11), context)
-        rows.append(["local x2: fork per round (11 tasks)", round((time.perf_counter() - t)
-                                                                  / 20 * 1000, 1), ""])
+        rows.append([f"local x2: fork per round (11 tasks), {size}",
+                     round((time.perf_counter() - t) / 20 * 1000, 1), "per round"])
     t = time.perf_counter()
     ray_engine = RayEngine(num_cpus=2, initializer=_worker_init)
     started = time.perf_counter() - t
@@ -130,10 +151,10 @@ def overhead(args, context_bytes: int = 0) -> None:
             per = (time.perf_counter() - t) / n
             rows.append([f"ray: {n} tasks in one round, {label}", round(per * 1000, 2), "per task"])
             t = time.perf_counter()
-            for _ in range(20):
+            for _ in range(args.rounds):
                 ray_engine.map(_nothing, range(11), dict(ctx) if ctx else {})  # new context
             rows.append([f"ray: a round of 11 tasks, {label} shipped anew",
-                         round((time.perf_counter() - t) / 20 * 1000, 1), "per round"])
+                         round((time.perf_counter() - t) / args.rounds * 1000, 1), "per round"])
     finally:
         t = time.perf_counter()
         ray_engine.close()
@@ -160,16 +181,17 @@ class MeasuringEngine(LocalEngine):
         t = time.perf_counter()
         pickle.loads(blob)
         unpickled = time.perf_counter() - t
-        t = time.perf_counter()
+        t, cpu = time.perf_counter(), time.process_time()
         out = super().map(fn, tasks, context, bar)
+        cpu = time.process_time() - cpu
         memory = (context or {}).get("memory")
         self.rounds.append({
-            "models": len(memory) if memory is not None else 0,
+            "episodes": len(tasks), "models": len(memory) if memory is not None else 0,
             "states": sum(m.n_states for m in memory.models.values()) if memory else 0,
             "context": len(blob), "pickle_s": pickled, "unpickle_s": unpickled,
             "tasks": sum(len(pickle.dumps(x, protocol=5)) for x in tasks),
             "outcomes": sum(len(pickle.dumps(o, protocol=5)) for o in out),
-            "episodes_s": time.perf_counter() - t, "between_s": since,
+            "episodes_s": time.perf_counter() - t, "cpu_s": cpu, "between_s": since,
             "straggler": _straggler([o.record["steps"] for o in out])})
         self._last = time.perf_counter()
         return out
@@ -184,21 +206,23 @@ def memory(args) -> None:
                      episodes=args.memory_episodes, max_steps=args.memory_max_steps,
                      segmenter=args.segmenter, variants=("si",))
     engine = MeasuringEngine()
+    _worker_init()  # one torch thread, as in run_eval
     t = time.perf_counter()
-    with tempfile.TemporaryDirectory() as out:
-        run_variant(cfg, VARIANTS["si"], resolve_extractor(cfg.extractor), Path(out),
-                    progress=True, engine=engine)
+    with tempfile.TemporaryDirectory() as tmp:
+        run_variant(cfg, VARIANTS["si"], resolve_extractor(cfg.extractor),
+                    Path(args.keep or tmp), progress=True, engine=engine)
     wall = time.perf_counter() - t
     r = engine.rounds
     rows = [[i, x["models"], x["states"], round(x["context"] / 1e6, 2),
              round(x["tasks"] / 1e3, 1), round(x["outcomes"] / 1e6, 2),
-             round(x["pickle_s"] + x["unpickle_s"], 3), round(x["between_s"], 2),
-             round(x["episodes_s"], 1), round(x["straggler"], 2)] for i, x in enumerate(r)]
+             round(x["pickle_s"], 3), round(x["unpickle_s"], 3), round(x["between_s"], 2),
+             round(x["episodes_s"], 1), round(x["cpu_s"] / x["episodes"], 2),
+             round(x["straggler"], 2)] for i, x in enumerate(r)]
     print_table(f"si over {cfg.source_name}, {args.memory_scenes} houses x "
                 f"{args.memory_episodes} episodes, max {args.memory_max_steps} steps: what a "
                 f"round ships ({wall:.0f} s, load avg {os.getloadavg()[0]:.1f})",
                 ["round", "models", "states", "context MB", "tasks kB", "outcomes MB",
-                 "(un)pickle s", "driver s", "episodes s", "straggler"], rows,
+                 "pickle s", "unpickle s", "driver s", "episodes s", "CPU s/ep", "straggler"], rows,
                 json_path=args.json)
     last = r[-1]
     final = last["context"] + last["outcomes"]  # what round N+1 would ship, roughly
@@ -224,6 +248,10 @@ def main() -> None:
     ap.add_argument("--memory-scenes", type=int, default=11)
     ap.add_argument("--memory-episodes", type=int, default=20)
     ap.add_argument("--memory-max-steps", type=int, default=500)
+    ap.add_argument("--rounds", type=int, default=20, help="rounds timed on Ray")
+    ap.add_argument("--keep", metavar="DIR", help="memory part: keep its store in DIR")
+    ap.add_argument("--memory-store", metavar="DIR",
+                    help="overhead part: ship the memory a '--part memory --keep DIR' left")
     ap.add_argument("--json", help="also write the memory part's rows to this JSON file")
     ap.add_argument("--one", nargs=3, metavar=("ENGINE", "WORKERS", "OUT"),
                     help=argparse.SUPPRESS)

@@ -236,3 +236,12 @@ def test_ctrl_c_cancels_the_rounds_ray_tasks(ray_cluster):
     assert time.perf_counter() - t0 < 30
     engine.close()
     assert ray_cluster.is_initialized()
+
+
+def test_ray_workers_stay_warm_between_rounds(ray_cluster):
+    with RayEngine(initializer=_mark_initialized) as engine:
+        rounds = [engine.map(_add, range(6), {"k": k}) for k in (0, 100)]
+    assert [r[0] for r in rounds[1]] == [100, 101, 102, 103, 104, 105]
+    # each process ran the initializer once, before its first task; processes serve rounds on
+    assert all(r[2] == [r[1]] for rnd in rounds for r in rnd)
+    assert {r[1] for r in rounds[0]} & {r[1] for r in rounds[1]}

@@ -167,7 +167,7 @@ class RayEngine(Engine):
                 kw = {"num_cpus": num_cpus, "include_dashboard": False, **kw}
             try:
                 ray.init(address=address or "local", **kw)
-            except (ConnectionError, ValueError, RuntimeError) as exc:
+            except Exception as exc:  # whatever Ray raises: a setting or machine to fix
                 where = f"join the Ray cluster at {address!r}" if address else "start Ray"
                 hint = ("; a cluster with token authentication (the default of `ray start` "
                         "since Ray 2.59) also needs RAY_AUTH_MODE=token and its token here"
