@@ -129,22 +129,35 @@ class ScanTable:
 
 
 def object_evidence(model: AbstractModel, objects: Iterable[str] | None = None,
-                    miss_range: float = MISS_RANGE, table: ScanTable | None = None
-                    ) -> dict[str, Evidence]:
-    """The :class:`Evidence` of ``objects`` (default: all), by id."""
+                    miss_range: float = MISS_RANGE, table: ScanTable | None = None,
+                    cache: dict | None = None, stale: int = 0) -> dict[str, Evidence]:
+    """The :class:`Evidence` of ``objects`` (default: all), by id.
+
+    ``cache`` (a dict the caller keeps) with ``stale`` > 0 reuses an object's evidence while
+    its views and position are unchanged and ``table`` has grown by fewer than ``stale``
+    states since: an agent asking every step need not recount every state."""
     g = model.graph
     ids = list(model.objects()) if objects is None else [o for o in objects if o in g]
     if table is None and ids and model.scan is not None:
         table = ScanTable(model)
+    n = len(table) if table is not None else 0
     out = {}
     for o in ids:
         d = g.nodes[o]
+        key = (d["n_views"], d["x"], d["y"])
+        if cache is not None and stale > 0:
+            hit = cache.get(o)
+            if hit is not None and hit[1] == key and n - hit[0] < stale:
+                out[o] = hit[2]
+                continue
         seers = {s for s, _, k in g.in_edges(o, keys=True) if k == SEES}
         episodes = {g.nodes[s]["episode"] for s in seers}
         missed = 0
         if table is not None:
             missed = sum(1 for s in table.covering(d["x"], d["y"], miss_range) if s not in seers)
         out[o] = Evidence(len(seers), len(episodes), missed, float(d["score"]))
+        if cache is not None:
+            cache[o] = (n, key, out[o])
     return out
 
 

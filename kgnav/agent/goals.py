@@ -30,6 +30,7 @@ class GoalConfig:
     min_views: int = 2  # a goal seen from one state only is likely a segmenter glitch
     min_belief: float = 0.5
     belief: BeliefModel = field(default_factory=lambda: DEFAULT_BELIEF)
+    evidence_refresh: int = 8  # recount an object's misses after this many new states
 
     def __post_init__(self):
         if self.rule not in GOAL_RULES:
@@ -37,9 +38,11 @@ class GoalConfig:
 
 
 def choose_goal(model: AbstractModel, cls: str, near, config: GoalConfig,
-                exclude=(), table: ScanTable | None = None, among=None) -> ObjectInfo | None:
+                exclude=(), table: ScanTable | None = None, among=None,
+                cache: dict | None = None) -> ObjectInfo | None:
     """The object of class ``cls`` to head for from ``near`` (model frame), or None;
-    ``among``: consider only these object ids."""
+    ``among``: consider only these object ids; ``cache``: evidence kept between calls (see
+    :func:`kgnav.evidence.object_evidence`)."""
     if among is not None:
         exclude = set(exclude) | {o for o in model._index.by_class.get(cls, ())
                                   if o not in among}
@@ -50,7 +53,8 @@ def choose_goal(model: AbstractModel, cls: str, near, config: GoalConfig,
              if o.id not in exclude and o.n_views >= config.min_views]
     if not cands:
         return None
-    ev = object_evidence(model, [o.id for o in cands], table=table)
+    ev = object_evidence(model, [o.id for o in cands], table=table, cache=cache,
+                         stale=config.evidence_refresh)
     trusted = [o for o in cands if belief(ev[o.id], config.belief) >= config.min_belief]
     if not trusted:
         return None

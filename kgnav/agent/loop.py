@@ -171,6 +171,7 @@ class ObjectNavAgent:
                                     extractor=self.extractor.name, scan=self.state_creator.scan)
         self.current_: AbstractModel = self.model_  # the merged model after a relocation
         self._scans = ScanTable(self.model_)  # range profiles of current_'s states
+        self._evidence: dict = {}  # goal candidates' evidence, recounted every few states
         self.log_ = EpisodeLog()
         self.step_ = 0
         self._prev: tuple[str, str] | None = None  # (state in model_, state in current_)
@@ -247,6 +248,7 @@ class ObjectNavAgent:
         stored = self.memory.model(r.model_id)
         self.current_ = merge(stored, self.model_, transform=r.transform)
         self._scans = ScanTable(self.current_)
+        self._evidence = {}
         # objects of the merged model that this episode perceived: those merged from model_
         prefix = f"{self.model_.model_id}/"
         self._seen_here = {
@@ -265,6 +267,7 @@ class ObjectNavAgent:
         self.log_.undone.append(self.relocalizer.undone[-1])
         self.current_ = self.model_
         self._scans = ScanTable(self.model_)
+        self._evidence = {}
         self._seen_here = set(self.model_.objects())
         self._prev = (self._prev[0], self._prev[0]) if self._prev else None
         self.log_.rejected = []  # object ids of the merged model, meaningless now
@@ -460,7 +463,8 @@ class ObjectNavAgent:
             return None
         near = pose[:2] if self.relocation_ is None else self._to_model(pose)[:2]
         info = choose_goal(model, self.goal, near, self.config.goals,
-                           exclude=set(self.log_.rejected), table=self._scans)
+                           exclude=set(self.log_.rejected), table=self._scans,
+                           cache=self._evidence)
         if info is None:
             return None
         xy = info.position[:2]
@@ -486,7 +490,8 @@ class ObjectNavAgent:
             return None
         near = self._to_model(p.state.pose)[:2] if self.relocation_ else p.state.pose[:2]
         info = choose_goal(model, self.goal, near, self.config.goals,
-                           exclude=self.log_.rejected, table=self._scans, among=set(seen))
+                           exclude=self.log_.rejected, table=self._scans, among=set(seen),
+                           cache=self._evidence)
         if info is None:
             return None
         xy = info.position[:2]
