@@ -39,7 +39,7 @@ CALIBRATION_SEED = 3  # frames of the train houses for the score threshold (not 
               help="Train-house frames to calibrate the segment-score threshold on (0: none).")
 @click.option("--split", default=_D.split, show_default=True,
               type=click.Choice([s for s in SPLITS if s.startswith("train")]),
-              help="Houses to train and calibrate on (the shipped weights: train-small).")
+              help="Houses to train and calibrate on (the shipped weights: train).")
 @training_options(threads_default=1)
 def train_segmenter(out: Path, seed: int, steps: int, batch: int, calibrate_frames: int,
                     split: str, time_budget: float | None, resume: bool,

@@ -45,16 +45,27 @@ from kgnav.model import SEES, AbstractModel
 #: Farther than this (m), a state that did not see an object is no evidence against it: a
 #: segmenter misses much of what is far.
 MISS_RANGE = 3.0
+#: Objects of other classes this close (m, centre to centre) are other labels for the same
+#: thing: real objects do not stand inside each other.
+RIVAL_RADIUS = 0.4
 
 
 @dataclass(frozen=True)
 class Evidence:
-    """What a model knows for and against one object."""
+    """What a model knows for and against one object. ``n_rival``: views of objects of
+    other classes at the same place (within :data:`RIVAL_RADIUS`): another label for the same
+    thing, as a segmenter that confuses a desk with a sofa gives it."""
 
     n_views: int
     n_episodes: int
     n_missed: int
     score: float
+    n_rival: int = 0
+
+    @property
+    def label_share(self) -> float:
+        """The share of the views at this place that gave this object's class."""
+        return self.n_views / (self.n_views + self.n_rival) if self.n_views else 0.0
 
 
 @dataclass(frozen=True)
@@ -129,23 +140,57 @@ class ScanTable:
 
 
 def object_evidence(model: AbstractModel, objects: Iterable[str] | None = None,
-                    miss_range: float = MISS_RANGE, table: ScanTable | None = None
-                    ) -> dict[str, Evidence]:
-    """The :class:`Evidence` of ``objects`` (default: all), by id."""
+                    miss_range: float = MISS_RANGE, table: ScanTable | None = None,
+                    cache: dict | None = None, stale: int = 0) -> dict[str, Evidence]:
+    """The :class:`Evidence` of ``objects`` (default: all), by id.
+
+    ``cache`` (a dict the caller keeps) with ``stale`` > 0 reuses an object's evidence while
+    its views and position are unchanged and ``table`` has grown by fewer than ``stale``
+    states since: an agent asking every step need not recount every state."""
     g = model.graph
     ids = list(model.objects()) if objects is None else [o for o in objects if o in g]
     if table is None and ids and model.scan is not None:
         table = ScanTable(model)
+    n = len(table) if table is not None else 0
+    rivals = _Rivals(model) if ids else None
     out = {}
     for o in ids:
         d = g.nodes[o]
+        key = (d["n_views"], d["x"], d["y"])
+        if cache is not None and stale > 0:
+            hit = cache.get(o)
+            if hit is not None and hit[1] == key and n - hit[0] < stale:
+                out[o] = hit[2]
+                continue
         seers = {s for s, _, k in g.in_edges(o, keys=True) if k == SEES}
         episodes = {g.nodes[s]["episode"] for s in seers}
         missed = 0
         if table is not None:
             missed = sum(1 for s in table.covering(d["x"], d["y"], miss_range) if s not in seers)
-        out[o] = Evidence(len(seers), len(episodes), missed, float(d["score"]))
+        out[o] = Evidence(len(seers), len(episodes), missed, float(d["score"]),
+                          rivals.views(o, d))
+        if cache is not None:
+            cache[o] = (n, key, out[o])
     return out
+
+
+class _Rivals:
+    """Object positions, classes and views of a model, to count other labels of a place."""
+
+    def __init__(self, model: AbstractModel):
+        g = model.graph
+        self.ids = list(model.objects())
+        self.xy = np.array([(g.nodes[o]["x"], g.nodes[o]["y"]) for o in self.ids],
+                           float).reshape(-1, 2)
+        self.cls = np.array([g.nodes[o]["cls"] for o in self.ids], dtype=object)
+        self.n_views = np.array([g.nodes[o]["n_views"] for o in self.ids], int)
+
+    def views(self, oid: str, d: dict) -> int:
+        if not self.ids:
+            return 0
+        near = np.hypot(self.xy[:, 0] - d["x"], self.xy[:, 1] - d["y"]) <= RIVAL_RADIUS
+        near &= self.cls != d["cls"]
+        return int(self.n_views[near].sum())
 
 
 def forget(model: AbstractModel, below: float = 0.2, belief_model: BeliefModel = DEFAULT_BELIEF

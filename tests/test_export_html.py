@@ -185,3 +185,27 @@ def test_renders_offline_in_chromium(page, model, tmp_path):
     assert status.group(2) == "rendered", result.stderr[-2000:]
     assert int(attrs["data-nodes"]) == model.n_states + model.n_objects
     assert int(attrs["data-edges"]) == len(_data(html, "edges"))
+
+
+def test_the_remembered_floor_and_evidence_are_drawn(tmp_path):
+    """A model whose states carry range profiles gets its occupancy as a picture under the
+    graph (with a switch), and object tooltips give the evidence and belief."""
+    import cv2
+
+    from kgnav import Detection
+    from kgnav.geometry import ScanGeometry
+
+    m = AbstractModel(2, model_id="floor", scan=ScanGeometry(90.0, 9, 5.0))
+    m.add_state([1.0, 0.0], (0, 0, 0), [Detection("chair", (2.0, 0.0, 0.4))],
+                ranges=np.full(9, 3.0))
+    m.add_state([0.0, 1.0], (0, 0, 1.5), ranges=np.full(9, 2.0))
+    html = export_html(m, tmp_path / "f.html").read_text(encoding="utf-8")
+    assert 'id="kgnav-floor"' in html and "beforeDrawing" in html
+    src = html.split('"src": "data:image/png;base64,')[1].split('"')[0]
+    img = cv2.imdecode(np.frombuffer(base64.b64decode(src), np.uint8), cv2.IMREAD_UNCHANGED)
+    assert img.shape[2] == 4 and (img[..., 3] > 0).sum() > 100  # some floor is known
+    assert (img[..., :3] == 70).all(axis=2).any()  # and some obstacle
+    assert "belief" in html and "missed by" in html
+    plain = AbstractModel(2, model_id="plain")
+    plain.add_state([1.0, 0.0], (0, 0, 0))
+    assert 'id="kgnav-floor"' not in export_html(plain, tmp_path / "p.html").read_text()

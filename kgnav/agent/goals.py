@@ -4,8 +4,10 @@
   goal class (:func:`kgnav.query.goal_point`).
 * ``"belief"`` (the default): the closest among the objects of the goal class whose belief
   (:func:`kgnav.evidence.belief`: views against misses of the states that had them in view)
-  is at least ``min_belief``. A place the memory looked at many times without seeing the goal
-  there is no longer a goal because a segmenter glitched twice.
+  is at least ``min_belief`` and whose place gave the goal class in at least
+  ``min_label_share`` of its views (the rest: another class at the same spot, a segmenter's
+  confusion). A place the memory looked at many times without seeing the goal there is no
+  longer a goal because a segmenter glitched twice.
 
 Either rule skips objects seen from fewer than ``min_views`` states and the ids excluded by
 the caller (objects already looked for and not found).
@@ -29,7 +31,9 @@ class GoalConfig:
     top_k: int = query.TOP_K  # the views rule's "most seen"
     min_views: int = 2  # a goal seen from one state only is likely a segmenter glitch
     min_belief: float = 0.5
+    min_label_share: float = 0.5  # the views at its place mostly give the goal class
     belief: BeliefModel = field(default_factory=lambda: DEFAULT_BELIEF)
+    evidence_refresh: int = 8  # recount an object's misses after this many new states
 
     def __post_init__(self):
         if self.rule not in GOAL_RULES:
@@ -37,9 +41,11 @@ class GoalConfig:
 
 
 def choose_goal(model: AbstractModel, cls: str, near, config: GoalConfig,
-                exclude=(), table: ScanTable | None = None, among=None) -> ObjectInfo | None:
+                exclude=(), table: ScanTable | None = None, among=None,
+                cache: dict | None = None) -> ObjectInfo | None:
     """The object of class ``cls`` to head for from ``near`` (model frame), or None;
-    ``among``: consider only these object ids."""
+    ``among``: consider only these object ids; ``cache``: evidence kept between calls (see
+    :func:`kgnav.evidence.object_evidence`)."""
     if among is not None:
         exclude = set(exclude) | {o for o in model._index.by_class.get(cls, ())
                                   if o not in among}
@@ -50,8 +56,10 @@ def choose_goal(model: AbstractModel, cls: str, near, config: GoalConfig,
              if o.id not in exclude and o.n_views >= config.min_views]
     if not cands:
         return None
-    ev = object_evidence(model, [o.id for o in cands], table=table)
-    trusted = [o for o in cands if belief(ev[o.id], config.belief) >= config.min_belief]
+    ev = object_evidence(model, [o.id for o in cands], table=table, cache=cache,
+                         stale=config.evidence_refresh)
+    trusted = [o for o in cands if belief(ev[o.id], config.belief) >= config.min_belief
+               and ev[o.id].label_share >= config.min_label_share]
     if not trusted:
         return None
     x, y = float(near[0]), float(near[1])

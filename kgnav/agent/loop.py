@@ -39,6 +39,7 @@ from kgnav.merge import merge
 from kgnav.model import ACTIONS, AbstractModel
 
 STRATEGIES = ("hard", "soft")
+SOFT_SEARCHES = ("direct", "area")
 
 __all__ = ["AgentConfig", "EpisodeLog", "ObjectNavAgent", "Percept", "Relocation", "Target"]
 
@@ -52,7 +53,9 @@ class AgentConfig:
     explore_interval: int = 25  # steps between global-policy decisions (the paper's 25)
     explore_radius: float = 0.25  # an exploration goal counts as reached this close
     strategy: str = "soft"  # with memory: "hard" or "soft"
-    soft_radius_factor: float = 0.25  # soft search radius per metre from match to goal
+    soft_search: str = "direct"  # "direct": to the point, confirm, let evidence decide;
+    # "area" (the paper): search an area around it whose radius grows with the distance
+    soft_radius_factor: float = 0.25  # area search radius per metre from match to goal
     soft_radius_bounds: tuple[float, float] = (1.0, 3.0)
     stall_steps: int = 40  # steps without progress toward an object before giving it up
     goals: GoalConfig = field(default_factory=GoalConfig)
@@ -66,6 +69,9 @@ class AgentConfig:
     def __post_init__(self):
         if self.strategy not in STRATEGIES:
             raise ValueError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
+        if self.soft_search not in SOFT_SEARCHES:
+            raise ValueError(f"soft_search must be one of {SOFT_SEARCHES}, "
+                             f"got {self.soft_search!r}")
 
     @classmethod
     def paper(cls, **overrides) -> AgentConfig:
@@ -75,7 +81,7 @@ class AgentConfig:
         base = cls(goals=GoalConfig(rule="views", min_views=1),
                    relocation=RelocationConfig(geometry=False, confirm_matches=1,
                                                landmark_radius=0.0, bridge_interval=0),
-                   seed_map=False, confirm_distance=0.0)
+                   seed_map=False, confirm_distance=0.0, soft_search="area")
         return replace(base, **overrides)
 
 
@@ -171,6 +177,7 @@ class ObjectNavAgent:
                                     extractor=self.extractor.name, scan=self.state_creator.scan)
         self.current_: AbstractModel = self.model_  # the merged model after a relocation
         self._scans = ScanTable(self.model_)  # range profiles of current_'s states
+        self._evidence: dict = {}  # goal candidates' evidence, recounted every few states
         self.log_ = EpisodeLog()
         self.step_ = 0
         self._prev: tuple[str, str] | None = None  # (state in model_, state in current_)
@@ -247,6 +254,7 @@ class ObjectNavAgent:
         stored = self.memory.model(r.model_id)
         self.current_ = merge(stored, self.model_, transform=r.transform)
         self._scans = ScanTable(self.current_)
+        self._evidence = {}
         # objects of the merged model that this episode perceived: those merged from model_
         prefix = f"{self.model_.model_id}/"
         self._seen_here = {
@@ -265,6 +273,7 @@ class ObjectNavAgent:
         self.log_.undone.append(self.relocalizer.undone[-1])
         self.current_ = self.model_
         self._scans = ScanTable(self.model_)
+        self._evidence = {}
         self._seen_here = set(self.model_.objects())
         self._prev = (self._prev[0], self._prev[0]) if self._prev else None
         self.log_.rejected = []  # object ids of the merged model, meaningless now
@@ -345,7 +354,8 @@ class ObjectNavAgent:
 
     def _approach(self, target: Target, plan: Plan, p: Percept) -> str | None:
         if plan.reached:
-            if target.source == "memory" and self._soft and target.stage != "commit":
+            if (target.source == "memory" and self._soft and target.stage != "commit"
+                    and self.config.soft_search == "area"):
                 return self._search(target)
             trusted = target.source == "memory" and (self.config.strategy == "hard"
                                                      or target.stage == "commit")
@@ -366,12 +376,18 @@ class ObjectNavAgent:
         return plan.action
 
     def _confirm(self, target: Target, p: Percept) -> str | None:
-        """At an object not yet seen from close range: turn toward it for a few steps; give
-        it up if it does not show (likely a far-away false positive)."""
+        """At an object not yet seen from close range: turn toward it for a few steps. If it
+        does not show, the evidence decides: those looks count against it, and if the model
+        (with its memory) still believes in it — an object the segmenter often misses, seen
+        many times before — the agent stops there; otherwise it gives it up (likely a
+        false positive seen from afar)."""
         if target.scan_left is None:
             target.scan_left = self.config.confirm_steps
         target.scan_left -= 1
         if target.scan_left < 0:
+            if self._still_believed(target.object_id):
+                self.log_.stop_reason = f"reached {target.source} goal, still believed"
+                return "stop"
             return self._drop(target)
         x, y, th = p.state.pose
         err = se2.wrap_angle(math.atan2(target.point[1] - y, target.point[0] - x) - th)
@@ -408,7 +424,8 @@ class ObjectNavAgent:
         if goals.rule != "belief":
             return False
         ev = object_evidence(self.current_, [object_id], table=self._scans)[object_id]
-        return belief(ev, goals.belief) >= goals.min_belief
+        return (belief(ev, goals.belief) >= goals.min_belief
+                and ev.label_share >= goals.min_label_share)
 
     def _drop(self, target: Target) -> None:
         if target.object_id is not None:
@@ -460,7 +477,8 @@ class ObjectNavAgent:
             return None
         near = pose[:2] if self.relocation_ is None else self._to_model(pose)[:2]
         info = choose_goal(model, self.goal, near, self.config.goals,
-                           exclude=set(self.log_.rejected), table=self._scans)
+                           exclude=set(self.log_.rejected), table=self._scans,
+                           cache=self._evidence)
         if info is None:
             return None
         xy = info.position[:2]
@@ -469,6 +487,8 @@ class ObjectNavAgent:
         xy = (float(xy[0]), float(xy[1]))
         if info.id in self._seen_here:
             return Target("episode", xy, info.id)
+        if self.config.soft_search != "area":
+            return Target("memory", xy, info.id, stage="point")
         lo, hi = self.config.soft_radius_bounds
         d = math.dist(self.relocation_.at if self.relocation_ else pose[:2], xy)
         return Target("memory", xy, info.id, min(max(self.config.soft_radius_factor * d, lo), hi))
@@ -486,7 +506,8 @@ class ObjectNavAgent:
             return None
         near = self._to_model(p.state.pose)[:2] if self.relocation_ else p.state.pose[:2]
         info = choose_goal(model, self.goal, near, self.config.goals,
-                           exclude=self.log_.rejected, table=self._scans, among=set(seen))
+                           exclude=self.log_.rejected, table=self._scans, among=set(seen),
+                           cache=self._evidence)
         if info is None:
             return None
         xy = info.position[:2]

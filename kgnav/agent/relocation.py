@@ -52,6 +52,7 @@ class RelocationConfig:
     inlier_distance: float = 0.2
     icp_rounds: int = 20  # alignment iterations at most; it stops when T no longer moves
     rejudge_after: int = 3  # steps before a refused hypothesis is judged again
+    verify_per_step: int = 1  # hypotheses verified per step at most (the best matches first)
     max_correction: tuple[float, float] = (1.0, 20.0)  # ICP may move T this much (m, degrees)
     landmark_radius: float = 1.5  # landmark pairing radius for checks and refinement (0: off)
     refine_pairs: int = 60  # most recent landmark pairs used to refine
@@ -192,6 +193,7 @@ class Relocalizer:
                 self._bridge(state)
             return None
         best = None
+        judged = 0
         for m in self._matches(state.features):
             stored = self.memory.model(m.model_id)
             T = se2.anchor_transform(stored.pose(m.state_id), state.pose)
@@ -201,6 +203,9 @@ class Relocalizer:
             if self.config.geometry:
                 if self._judged_lately(step, m.model_id, T):
                     continue
+                if judged >= self.config.verify_per_step:
+                    break  # the rest wait for a later step: each judgement costs milliseconds
+                judged += 1
                 v = self.verify(m.model_id, T)
                 self.decisions[v.reason] += 1
                 if not v.ok:

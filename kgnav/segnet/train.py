@@ -33,6 +33,7 @@ CHECKPOINT_FORMAT = "kgnav-segmenter-checkpoint"
 class SegTrainConfig(TrainingConfig):
     """Everything that determines a training run (recorded in checkpoints and weight files)."""
 
+    split: str = "train"  # the shipped weights: the Matterport3D-scale train houses
     steps: int = 12000
     lr: float = 3e-3
     warmup: int = 100

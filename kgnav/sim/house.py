@@ -644,26 +644,18 @@ def _all_rooms_connected(scene: Scene) -> bool:
     return len(rooms) == len(scene.rooms)
 
 
-def _generate(rng: np.random.Generator, seed: int, name: str | None, n: int) -> Scene:
-    # area grows with the room count; about 14 m^2 per room, capped at 20 m x 20 m
-    area = n * rng.uniform(12.0, 18.0)
-    aspect = rng.uniform(0.7, 1.4)
-    w = min(max(math.sqrt(area * aspect), 2 * 2.6), 20.0)
-    d = min(max(area / w, 2 * 2.6), 20.0)
-    w, d = round(w * 4) / 4, round(d * 4) / 4
-    rects = _split_rooms(rng, w, d, n)
-    while len(rects) < 4:  # a too-small floor: enlarge until 4 rooms fit
-        w, d = min(w + 1.0, 20.0), min(d + 1.0, 20.0)
-        rects = _split_rooms(rng, w, d, n)
-    kinds = _assign_kinds(rng, rects)
-
-    # doors: random spanning tree over the adjacency graph, then a few extra loops
+def door_tree(rng: np.random.Generator, rects, weight=None, loops: float = 0.2) -> list:
+    """Which adjacent rooms get a door: a random spanning tree of the rooms sharing enough wall
+    (edge order drawn from ``rng``, scaled by ``weight(i, j)`` when given, so a smaller weight
+    comes first), plus each other adjacency with probability ``loops``. Returns
+    ``[(i, j, shared_edge), ...]``."""
     edges = []
     for i in range(len(rects)):
         for j in range(i + 1, len(rects)):
             e = _shared_edge(rects[i], rects[j])
             if e and e[3] - e[2] >= DOOR_WIDTH + 0.5:
-                edges.append((float(rng.uniform()), i, j, e))
+                w = float(rng.uniform())
+                edges.append((w * weight(i, j) if weight else w, i, j, e))
     edges.sort(key=lambda t: t[0])
     parent = list(range(len(rects)))
 
@@ -678,19 +670,44 @@ def _generate(rng: np.random.Generator, seed: int, name: str | None, n: int) -> 
         if find(i) != find(j):
             parent[find(i)] = find(j)
             chosen.append((i, j, e))
-        elif rng.uniform() < 0.2:
+        elif rng.uniform() < loops:
             chosen.append((i, j, e))
+    return chosen
+
+
+def cut_doors(rng: np.random.Generator, chosen, width=None) -> tuple[list[Door], list[tuple]]:
+    """A door in each chosen shared wall, at a random place along it: the :class:`Door`
+    rectangles and the door intervals ``(axis, coord, lo, hi)`` the walls are cut at.
+    ``width(i, j, span)`` may widen a door (default :data:`DOOR_WIDTH`)."""
     doors: list[Door] = []
-    door_lines = []
+    lines = []
     t = WALL_THICKNESS
     for i, j, (axis, c, lo, hi) in chosen:
-        a = round(float(rng.uniform(lo + 0.25, hi - 0.25 - DOOR_WIDTH)), 3)
-        b = round(a + DOOR_WIDTH, 3)
-        door_lines.append((axis, c, a, b))
+        dw = width(i, j, hi - lo) if width else DOOR_WIDTH
+        a = round(float(rng.uniform(lo + 0.25, hi - 0.25 - dw)), 3)
+        b = round(a + dw, 3)
+        lines.append((axis, c, a, b))
         if axis == "x":
             doors.append(Door(i, j, c - t / 2, a, c + t / 2, b))
         else:
             doors.append(Door(i, j, a, c - t / 2, b, c + t / 2))
+    return doors, lines
+
+
+def _generate(rng: np.random.Generator, seed: int, name: str | None, n: int) -> Scene:
+    # area grows with the room count; about 14 m^2 per room, capped at 20 m x 20 m
+    area = n * rng.uniform(12.0, 18.0)
+    aspect = rng.uniform(0.7, 1.4)
+    w = min(max(math.sqrt(area * aspect), 2 * 2.6), 20.0)
+    d = min(max(area / w, 2 * 2.6), 20.0)
+    w, d = round(w * 4) / 4, round(d * 4) / 4
+    rects = _split_rooms(rng, w, d, n)
+    while len(rects) < 4:  # a too-small floor: enlarge until 4 rooms fit
+        w, d = min(w + 1.0, 20.0), min(d + 1.0, 20.0)
+        rects = _split_rooms(rng, w, d, n)
+    kinds = _assign_kinds(rng, rects)
+
+    doors, door_lines = cut_doors(rng, door_tree(rng, rects))
     walls = _wall_boxes(rects, door_lines, rng)
 
     rooms = []

@@ -36,7 +36,6 @@ from kgnav.sim.house import (
     _PRIORS,
     _SIZES,
     DOOR_WIDTH,
-    WALL_THICKNESS,
     Door,
     ObjectInstance,
     Room,
@@ -48,8 +47,9 @@ from kgnav.sim.house import (
     _hsv,
     _Placer,
     _room_style,
-    _shared_edge,
     _wall_boxes,
+    cut_doors,
+    door_tree,
 )
 
 GENERATOR_V2 = "house-v2"
@@ -224,45 +224,19 @@ _SIZE_RANK = {"living_room": 0, "dining_room": 1, "kitchen": 2, "bedroom": 2, "o
 
 
 def _doors(rng, rects, kinds) -> tuple[list[Door], list[tuple]]:
-    """A spanning tree of adjacent rooms (corridor links first), a few loops, door openings."""
-    edges = []
+    """A spanning tree of adjacent rooms (corridor links first), a few loops, door openings
+    (some wide between living areas)."""
     living = {"living_room", "dining_room", "kitchen", "hallway"}
-    for i in range(len(rects)):
-        for j in range(i + 1, len(rects)):
-            e = _shared_edge(rects[i], rects[j])
-            if e and e[3] - e[2] >= DOOR_WIDTH + 0.5:
-                to_hall = "hallway" in (kinds[i], kinds[j])
-                edges.append((float(rng.uniform()) * (0.3 if to_hall else 1.0), i, j, e))
-    edges.sort(key=lambda t: t[0])
-    parent = list(range(len(rects)))
 
-    def find(a):
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
+    def weight(i, j):
+        return 0.3 if "hallway" in (kinds[i], kinds[j]) else 1.0
 
-    chosen = []
-    for _wt, i, j, e in edges:
-        if find(i) != find(j):
-            parent[find(i)] = find(j)
-            chosen.append((i, j, e))
-        elif rng.uniform() < 0.15:
-            chosen.append((i, j, e))
-    doors, lines = [], []
-    t = WALL_THICKNESS
-    for i, j, (axis, c, lo, hi) in chosen:
-        width = DOOR_WIDTH
+    def width(i, j, span):
         if kinds[i] in living and kinds[j] in living and rng.uniform() < 0.5:
-            width = min(float(rng.uniform(*WIDE_OPENING)), hi - lo - 0.5)
-        a = round(float(rng.uniform(lo + 0.25, hi - 0.25 - width)), 3)
-        b = round(a + width, 3)
-        lines.append((axis, c, a, b))
-        if axis == "x":
-            doors.append(Door(i, j, c - t / 2, a, c + t / 2, b))
-        else:
-            doors.append(Door(i, j, a, c - t / 2, b, c + t / 2))
-    return doors, lines
+            return min(float(rng.uniform(*WIDE_OPENING)), span - 0.5)
+        return DOOR_WIDTH
+
+    return cut_doors(rng, door_tree(rng, rects, weight, loops=0.15), width)
 
 
 # --------------------------------------------------------------------------- objects
