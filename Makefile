@@ -43,6 +43,7 @@ bench: $(STAMP)
 	$(PY) bench/bench_agent.py
 	$(PY) bench/bench_encoder.py
 	$(PY) bench/bench_segmenter.py
+	$(PY) bench/bench_policy.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check kgnav tests queries bench

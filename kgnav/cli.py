@@ -353,6 +353,10 @@ def _register() -> None:
 
     app.add_command(train_segmenter)
     app.add_command(segmenter_bench)
+    from kgnav.cli_explore import policy_bench, train_policy
+
+    app.add_command(train_policy)
+    app.add_command(policy_bench)
 
 
 _register()

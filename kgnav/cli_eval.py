@@ -110,13 +110,24 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
               help="Agent settings: default (verified relocation, remembered geometry, "
                    "evidence-weighted goals, close-range confirmation, memory consolidation) "
                    "or the paper's own.")
+@click.option("--policy", default=None, metavar="NAME",
+              help="Global exploration policy of ans and si: frontier (their default), ppo, "
+                   "ppo-semantic, random-goal, ...; sem+si keeps semantic unless "
+                   "ppo-semantic.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 def eval_cmd(split, scenes_dir, variants, out_dir, scenes, episodes, workers, engine, address,
-             segmenter, extractor, threshold, pre_explore_steps, show, noise, preset, seed,
-             quiet) -> None:
+             segmenter, extractor, threshold, pre_explore_steps, show, noise, preset, policy,
+             seed, quiet) -> None:
     """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
     from kgnav.agent.loop import PRESETS
+    from kgnav.agent.policy import make_policy, policy_names
+
+    if policy is not None:
+        if policy not in policy_names():
+            raise click.BadParameter(f"unknown policy {policy!r} (known: "
+                                     f"{', '.join(policy_names())})", param_hint="--policy")
+        make_policy(policy)  # a weight file that does not load fails here, in one line
     from kgnav.evaluation.runner import EvalConfig, run_eval
 
     cfg = EvalConfig(split=split, scenes_dir=None if scenes_dir is None else str(scenes_dir),
@@ -126,7 +137,7 @@ def eval_cmd(split, scenes_dir, variants, out_dir, scenes, episodes, workers, en
                      pre_explore_steps=pre_explore_steps,
                      show=show, actuation_noise=noise[0], odometry_noise=noise[1],
                      agent=PRESETS[preset](), forget_below=0.2 if preset == "default" else 0.0,
-                     preset=preset)
+                     preset=preset, policy=policy)
     if show is None:  # the first house's last episode
         cfg = replace(cfg, show=(0, len(cfg.source.episodes(0, episodes)) - 1))
     _records, summary = run_eval(cfg, out_dir, progress=not quiet)

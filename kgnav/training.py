@@ -88,6 +88,13 @@ class SeededTrainer:
     def _train_step(self) -> float:
         raise NotImplementedError
 
+    def extra_state(self) -> dict:
+        """Plain data (lists, numbers) a subclass keeps across sessions; checkpoints carry it."""
+        return {}
+
+    def load_extra_state(self, state: dict) -> None:
+        """Restore what :meth:`extra_state` returned."""
+
     def optimise(self, loss: torch.Tensor) -> float:
         """One optimizer step on ``loss``; advances :attr:`step`; returns the loss value."""
         self.opt.zero_grad(set_to_none=True)
@@ -165,6 +172,7 @@ class SeededTrainer:
             "step": self.step,
             "elapsed_s": self.elapsed_s,
             "losses": list(self.losses),
+            "extra": self.extra_state(),
             **{k: None if m is None else m.state_dict() for k, m in self.modules().items()},
             "optim": self.opt.state_dict(),
         }
@@ -192,6 +200,7 @@ class SeededTrainer:
         self.step = int(state["step"])
         self.elapsed_s = float(state.get("elapsed_s", 0.0))
         self.losses = [float(v) for v in state.get("losses", [])]
+        self.load_extra_state(state.get("extra") or {})
         return self
 
     def train_meta(self, curve_every: int = 0) -> dict:

@@ -13,6 +13,7 @@ sensors, so a learned policy can be plugged in:
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
@@ -38,6 +39,8 @@ class GlobalPolicy(Protocol):
 
 
 POLICIES: dict[str, Callable[..., GlobalPolicy]] = {}
+#: Modules registering more policies, imported on first use (the learned ones need torch).
+_PLUGINS = ("kgnav.explore.policy",)
 
 
 def register_policy(name: str):
@@ -50,7 +53,16 @@ def register_policy(name: str):
     return deco
 
 
+def policy_names() -> list[str]:
+    """Every registered policy name, the plugins' included."""
+    for mod in _PLUGINS:
+        importlib.import_module(mod)
+    return sorted(POLICIES)
+
+
 def make_policy(name: str, **params) -> GlobalPolicy:
+    if name not in POLICIES:
+        policy_names()
     if name not in POLICIES:
         raise KgnavError(f"unknown global policy {name!r} (known: {', '.join(sorted(POLICIES))})")
     return POLICIES[name](**params)

@@ -43,7 +43,7 @@ from kgnav.evaluation.engines import Engine, check_settings, make_engine
 from kgnav.evaluation.failures import FAILURE_CLASSES, classify
 from kgnav.evaluation.sources import SceneSource, scene_source
 from kgnav.evaluation.stats import paired_differences
-from kgnav.evaluation.variants import VARIANTS, Variant
+from kgnav.evaluation.variants import VARIANTS, Variant, with_policy
 from kgnav.evidence import forget
 from kgnav.merge import merge
 from kgnav.model import AbstractModel
@@ -84,6 +84,7 @@ class EvalConfig:
     forget_below: float = 0.2  # stored objects whose belief falls below this are forgotten
     preset: str = "default"  # the name of the agent settings (recorded in config.json)
     show: tuple[int, int] | None = None  # (scene, episode) to draw from above per variant
+    policy: str | None = None  # global policy of ans/si (see variants.with_policy)
     agent: AgentConfig = field(default_factory=AgentConfig)
     engine: str = "local"
     address: str | None = None
@@ -660,8 +661,8 @@ def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = Tr
     try:
         for name in cfg.variants:
             t0 = time.perf_counter()
-            recs, memory = run_variant(cfg, VARIANTS[name], extractor_name, out_dir, progress,
-                                       write, engine)
+            recs, memory = run_variant(cfg, with_policy(VARIANTS[name], cfg.policy),
+                                       extractor_name, out_dir, progress, write, engine)
             dt = time.perf_counter() - t0
             timing[name] = {"seconds": round(dt, 2),
                             "episodes_per_second": round(len(recs) / dt, 4) if dt > 0 else None}

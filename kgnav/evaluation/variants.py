@@ -14,7 +14,7 @@ Abstract Models"), by name.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from kgnav.errors import KgnavError
 
@@ -44,6 +44,21 @@ VARIANTS: dict[str, Variant] = {
         Variant("oracle", oracle=True),
     )
 }
+
+
+def with_policy(variant: Variant, policy: str | None) -> Variant:
+    """``variant`` under ``kgnav eval --policy``: ``ans`` and ``si`` explore with ``policy``;
+    ``sem+si`` keeps ``semantic`` unless ``policy`` is ``ppo-semantic``; the rest keep theirs.
+
+    >>> with_policy(VARIANTS["si"], "ppo").policy, with_policy(VARIANTS["sem+si"], "ppo").policy
+    ('ppo', 'semantic')
+    """
+    if policy is None:
+        return variant
+    if variant.name in ("ans", "si") or (variant.policy == "semantic"
+                                         and policy == "ppo-semantic"):
+        return replace(variant, policy=policy)
+    return variant
 
 
 def parse_variants(text: str) -> list[Variant]:
