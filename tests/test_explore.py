@@ -276,12 +276,17 @@ def test_registry_and_variant_policies():
     assert with_policy(VARIANTS["si"], None) is VARIANTS["si"]
 
 
-@pytest.mark.parametrize("name", ["ppo", "ppo-semantic"])
-def test_shipped_weights_load_offline(name):
-    w = load_weights(DEFAULT_WEIGHTS[name], semantic=name == "ppo-semantic")
+def test_shipped_weights_load_offline():
+    w = load_weights()
     assert w.meta["train"]["split"] == "train" and w.meta["train"]["complete"]
-    assert DEFAULT_WEIGHTS[name].stat().st_size < 2_000_000
+    assert DEFAULT_WEIGHTS["ppo"].stat().st_size < 2_000_000
     assert ExploreNet(w.arch) is not None
+
+
+def test_unshipped_semantic_weights_say_how_to_train_them(monkeypatch, tmp_path):
+    monkeypatch.setitem(DEFAULT_WEIGHTS, "ppo-semantic", tmp_path / "explore-semantic.npz")
+    with pytest.raises(PolicyWeightsError, match="train-policy --policy ppo-semantic"):
+        load_weights(semantic=True)
 
 
 def test_eval_runs_with_the_learned_policy(tmp_path):

@@ -63,6 +63,9 @@ def load_weights(path: str | os.PathLike[str] | None = None, *,
     ``ppo-semantic`` ones with ``semantic=True``). ``semantic`` also checks the file's kind."""
     if path is None:
         path = DEFAULT_WEIGHTS["ppo-semantic" if semantic else "ppo"]
+        if not path.exists():  # ppo-semantic is not shipped: it is trained on demand
+            raise PolicyWeightsError(path, "not shipped; train it first: kgnav train-policy "
+                                     "--policy ppo-semantic --out " + str(path))
     path = Path(path)
     meta, params = read_npz(path, fmt=FORMAT, version=VERSION,
                             what="kgnav exploration-policy weight file",
