@@ -152,6 +152,36 @@ def _interrupt_and_check(tmp_path, monkeypatch, cfg):
     assert (tmp_path / "episodes.jsonl").read_text() == "an earlier complete run\n"
 
 
+class _CountingEngine(LocalEngine):
+    def __init__(self, workers):
+        super().__init__(workers, runner._worker_init)
+        self.calls = []
+
+    def map(self, fn, tasks, context=None, bar=None):
+        tasks = list(tasks)
+        self.calls.append([(t[2], t[3]) for t in tasks])
+        return super().map(fn, tasks, context, bar)
+
+
+def test_rounds_are_batched_only_where_the_memory_cannot_change(tmp_path):
+    """Memory-less and pre-explored variants send several rounds per engine call (enough for
+    two episodes per worker), a learning one round by round; the records, in round order,
+    are the bytes of one process."""
+    cfg = _quick(variants=("ans", "si"), episodes=3, max_steps=60)
+    ext = resolve_extractor(cfg.extractor)
+    one = {v: run_variant(cfg, VARIANTS[v], ext, None, False, engine=LocalEngine(1))[0]
+           for v in ("ans", "si")}
+    for v, want in (("ans", [[(0, 0), (1, 0), (0, 1), (1, 1)], [(0, 2), (1, 2)]]),
+                    ("si", [[(0, 0), (1, 0)], [(0, 1), (1, 1)], [(0, 2), (1, 2)]])):
+        engine = _CountingEngine(2)
+        parts = []
+        recs, _ = run_variant(cfg, VARIANTS[v], ext, None, False, on_round=parts.append,
+                              engine=engine)
+        assert engine.calls == want
+        assert [[r["episode"] for r in p] for p in parts] == [[0, 0], [1, 1], [2, 2]]
+        assert json.dumps(recs) == json.dumps(one[v])
+
+
 # ---------------------------------------------------------------------- Ray
 def test_ray_interrupt_stops_the_instance_it_started(tmp_path, ray_tmp, monkeypatch):
     """Ctrl-C in a round of ``--engine ray`` (a Ray instance of 2 CPUs the run starts): the

@@ -53,6 +53,10 @@ class Engine:
         """How it runs, for ``config.json``'s execution settings."""
         return {"engine": self.name}
 
+    def slots(self) -> int:
+        """How many tasks it runs at once."""
+        return 1
+
     def close(self) -> None:
         pass
 
@@ -112,6 +116,9 @@ class LocalEngine(Engine):
 
     def describe(self) -> dict:
         return {"engine": self.name, "workers": self.workers}
+
+    def slots(self) -> int:
+        return max(1, self.workers)
 
 
 # ---------------------------------------------------------------------- ray
@@ -215,6 +222,11 @@ class RayEngine(Engine):
             out["cpus"] = int(ray.cluster_resources().get("CPU", 0))
             out["nodes"] = sum(1 for n in ray.nodes() if n.get("Alive"))
         return out
+
+    def slots(self) -> int:
+        import ray
+
+        return max(1, int(ray.cluster_resources().get("CPU", 1)) if ray.is_initialized() else 1)
 
     def close(self) -> None:
         """Drop the last context; stop the Ray instance this engine started, or disconnect

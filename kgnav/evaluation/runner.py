@@ -421,6 +421,14 @@ def _episode_count(cfg: EvalConfig) -> list[int]:
     return [len(cfg.source.episodes(s, cfg.episodes)) for s in cfg.scene_indices]
 
 
+def _rounds_per_call(engine: Engine, houses: int) -> int:
+    """Rounds one engine call may hold for a variant whose memory never changes between
+    rounds (``ans``, ``oracle``, the pre-explored ones): enough to give every CPU two episodes,
+    so a wide cluster is not idle waiting on a round of one episode per house. A variant that
+    learns runs round by round: each round sees the memory the previous ones left."""
+    return max(1, -(-2 * engine.slots() // max(houses, 1)))
+
+
 def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Path | None,
                 progress: bool = True, on_round: Callable[[list[dict]], None] | None = None,
                 engine: Engine | None = None) -> tuple[list[dict], dict | None]:
@@ -444,22 +452,22 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
     bar = _bar(sum(counts.values()), variant.name, progress)
     records: list[dict] = []
     threshold = _threshold(cfg, _extractor(extractor_name)) if variant.memory else None
+    step = 1 if variant.learns else _rounds_per_call(engine, len(scenes))
     try:
-        for r in range(rounds):
-            if r == 0 or variant.learns:  # pre-explored memories never change: index once
+        for r0 in range(0, rounds, step):
+            if r0 == 0 or variant.learns:  # pre-explored memories never change: index once
                 context = {}
                 if variant.memory:
                     context["memory"] = Memory(models, threshold=threshold)
                 if variant.policy == "semantic":
                     context["cooccurrence"] = cooccurrence(models.values())
             tasks = [(cfg, variant, s, r, r, extractor_name, _topdown_path(cfg, out, variant, s, r))
-                     for s in scenes if r < counts[s]]
+                     for r in range(r0, min(r0 + step, rounds)) for s in scenes if r < counts[s]]
             outcomes = engine.map(_run_task, tasks, context, bar)
             for o in outcomes:
                 for path, data in o.files.items():
                     Path(path).parent.mkdir(parents=True, exist_ok=True)
                     Path(path).write_bytes(data)
-            round_records = [o.record for o in outcomes]
             if variant.learns:
                 for o in outcomes:  # merges in scene order: the same with any worker count
                     changed, gone = absorb(models, o, cfg.forget_below)
@@ -468,9 +476,11 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
                         store.save(models[changed])
                         for mid in gone:
                             store.delete(mid)
-            records.extend(round_records)
-            if on_round is not None:
-                on_round(round_records)
+            for r in range(r0, min(r0 + step, rounds)):  # records and .part, round by round
+                round_records = [o.record for o in outcomes if o.record["episode"] == r]
+                records.extend(round_records)
+                if on_round is not None:
+                    on_round(round_records)
     finally:
         bar.close()
         _ROUND.clear()
