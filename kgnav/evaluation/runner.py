@@ -82,6 +82,7 @@ class EvalConfig:
     actuation_noise: float = 0.0
     odometry_noise: float = 0.0
     forget_below: float = 0.2  # stored objects whose belief falls below this are forgotten
+    forget_label_share: float = 0.5  # ... and those whose place mostly gave another class
     preset: str = "default"  # the name of the agent settings (recorded in config.json)
     show: tuple[int, int] | None = None  # (scene, episode) to draw from above per variant
     policy: str | None = None  # global policy of ans/si (see variants.with_policy)
@@ -470,7 +471,8 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
                     Path(path).write_bytes(data)
             if variant.learns:
                 for o in outcomes:  # merges in scene order: the same with any worker count
-                    changed, gone = absorb(models, o, cfg.forget_below)
+                    changed, gone = absorb(models, o, cfg.forget_below,
+                                           cfg.forget_label_share)
                     seen.setdefault(o.record["scene"], set()).update(o.seen)
                     if store is not None:
                         store.save(models[changed])
@@ -507,17 +509,21 @@ def _topdown_path(cfg: EvalConfig, out: Path | None, variant: Variant, scene: in
     return str(out / "topdown" / f"{variant.name}_{scene:02d}_e{episode:03d}.png")
 
 
-def absorb(models: dict[str, AbstractModel], o: Outcome, forget_below: float = 0.0
-           ) -> tuple[str, list[str]]:
+def absorb(models: dict[str, AbstractModel], o: Outcome, forget_below: float = 0.0,
+           forget_label_share: float = 0.0) -> tuple[str, list[str]]:
     """Fold an episode's model into the memory (in place): merged into the model it relocated
     into, or stored as a new model; a stored model the episode also verifiably matched (a
     bridge) is merged into that one too, so separate models of one house join. Objects whose
-    belief fell below ``forget_below`` are then forgotten (:func:`kgnav.evidence.forget`).
+    belief fell below ``forget_below``, or whose place mostly gave another class
+    (``forget_label_share``), are then forgotten (:func:`kgnav.evidence.forget`).
     Returns the id of the model that changed and the ids of the models folded away."""
+    def consolidate(m: AbstractModel) -> None:
+        if forget_below > 0 or forget_label_share > 0:
+            forget(m, forget_below, min_label_share=forget_label_share)
+
     if o.matched is None or o.matched not in models:
         models[o.model.model_id] = o.model
-        if forget_below > 0:
-            forget(o.model, forget_below)
+        consolidate(o.model)
         return o.model.model_id, []
     into = o.matched
     merged = merge(models[into], o.model, transform=o.transform)
@@ -529,8 +535,7 @@ def absorb(models: dict[str, AbstractModel], o: Outcome, forget_below: float = 0
         merged = merge(merged, models.pop(mid), transform=se2.compose(o.transform,
                                                                       se2.inverse(T)))
         gone.append(mid)
-    if forget_below > 0:
-        forget(merged, forget_below)
+    consolidate(merged)
     models[into] = merged
     return into, gone
 
@@ -546,7 +551,8 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
                   engine: Engine) -> dict[str, AbstractModel]:
     """The hp/sp memory: one pre-explored model per house, built once per output directory."""
     key = json.dumps({"split": cfg.source_name, "scenes": cfg.scene_indices, "seed": cfg.seed,
-                      "forget": cfg.forget_below, "agent": asdict(cfg.agent),
+                      "forget": [cfg.forget_below, cfg.forget_label_share],
+                      "agent": asdict(cfg.agent),
                       "steps": cfg.pre_explore_steps, "extractor": extractor_name,
                       "segmenter": cfg.segmenter, "size": [cfg.width, cfg.height]},
                      sort_keys=True)
@@ -570,8 +576,8 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
         try:
             tasks = [(cfg, s, extractor_name) for s in cfg.scene_indices]
             for m, saw in engine.map(_pre_task, tasks, {}, bar):
-                if cfg.forget_below > 0:
-                    forget(m, cfg.forget_below)
+                if cfg.forget_below > 0 or cfg.forget_label_share > 0:
+                    forget(m, cfg.forget_below, min_label_share=cfg.forget_label_share)
                 models[m.model_id] = m
                 seen[_house_of(m.model_id)] = saw
         finally:
