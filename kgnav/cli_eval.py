@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from kgnav.agent.segmenter import SEGMENTER_PRESETS
+from kgnav.errors import KgnavError
 from kgnav.evaluation.engines import ENGINES
 from kgnav.evaluation.failures import FAILURE_CLASSES
 from kgnav.evaluation.variants import VARIANTS
@@ -63,8 +64,9 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
 
 @click.command("eval")
 @click.option("--env", "env_name", default="kgnav", show_default=True, metavar="NAME",
-              help="The environment: kgnav (the embedded simulator) or any registered with "
-                   "kgnav.envs.register_env.")
+              help="The environment: kgnav (the embedded simulator), any registered with "
+                   "kgnav.envs.register_env or the 'kgnav.envs' entry points, or "
+                   "MODULE:FACTORY.")
 @click.option("--split", default="val", show_default=True,
               help=f"Which scenes: for --env kgnav one of {', '.join(SPLITS)} (train/val at "
                    "Matterport3D scale, *-small from the first, small generator); another "
@@ -126,11 +128,12 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
     """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
     from kgnav.agent.loop import PRESETS
     from kgnav.agent.policy import make_policy, policy_names
-    from kgnav.envs import env_names
+    from kgnav.envs import find_env
 
-    if env_name not in env_names():
-        raise click.BadParameter(f"unknown environment {env_name!r} (known: "
-                                 f"{', '.join(env_names())})", param_hint="--env")
+    try:
+        find_env(env_name)
+    except KgnavError as e:
+        raise click.BadParameter(str(e), param_hint="--env") from None
     if env_name == "kgnav" and scenes_dir is None and split not in SPLITS:
         raise click.BadParameter(f"unknown split {split!r} (known: {', '.join(SPLITS)})",
                                  param_hint="--split")

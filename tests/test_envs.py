@@ -78,19 +78,21 @@ class GridRoom:
 
     Ground truth offered: ``info["success"]`` only, unless ``hooks`` (then also the metric
     keys, ``episode_start``, ``start_frame_to_world``, ``l2_distance_to_goal`` and
-    ``scene_name``).
+    ``scene_name``). ``camera`` and ``actions`` may be other than the defaults.
     """
 
-    def __init__(self, k: int, n: int | None = None, hooks: bool = False, max_steps: int = 60):
+    def __init__(self, k: int, n: int | None = None, hooks: bool = False, max_steps: int = 60,
+                 camera: CameraSpec = CAMERA, actions: ActionSpec = ACTIONS):
         self.width, self.depth, self.boxes = ROOMS[k]
         self.episodes = EPISODES[:n] if n else EPISODES
         self.hooks = hooks
-        self.env_spec = EnvSpec("grid", CAMERA, ACTIONS, CLASSES, semantic=True,
+        self.camera, self.actions = camera, actions
+        self.env_spec = EnvSpec("grid", camera, actions, CLASSES, semantic=True,
                                 max_steps=max_steps)
-        cam = Camera.from_spec(CAMERA)
-        v, u = np.mgrid[0:CAMERA.height, 0:CAMERA.width] + 0.5
-        fx, fy, cx, cy = cam.focal, cam._rays[3], CAMERA.cx, CAMERA.cy
-        p = math.radians(CAMERA.pitch_deg)
+        cam = Camera.from_spec(camera)
+        v, u = np.mgrid[0:camera.height, 0:camera.width] + 0.5
+        fx, fy, cx, cy = cam.focal, cam._rays[3], cam._rays[4], cam._rays[5]
+        p = math.radians(camera.pitch_deg)
         up = (cy - v) / fy
         # per pixel, the agent-frame direction of a ray of unit z-depth
         self._dir = np.stack([math.cos(p) - up * math.sin(p), -(u - cx) / fx,
@@ -108,17 +110,9 @@ class GridRoom:
 
     def step(self, action):
         assert not self.done, "step after the end"
-        name = ACTIONS.names[int(action)]
-        x, y, t = self.pose
-        if name == "move_forward":
-            nx, ny = x + ACTIONS.step_m * math.cos(t), y + ACTIONS.step_m * math.sin(t)
-            if self._free(nx, ny):
-                self.path += ACTIONS.step_m
-                x, y = nx, ny
-        elif name in ("turn_left", "turn_right"):
-            t += math.radians(ACTIONS.turn_deg) * (1 if name == "turn_left" else -1)
-        self.pose = (x, y, t)
-        self.steps += 1
+        name = self.actions.names[int(action)]
+        self.move(name)
+        x, y, _t = self.pose
         stop = name == "stop"
         trunc = not stop and self.steps >= self.env_spec.max_steps
         self.done = stop or trunc
@@ -147,18 +141,33 @@ class GridRoom:
                 sy + math.sin(st) * x + math.cos(st) * y)
 
     # ------------------------------------------------------------------ internals
+    def move(self, name: str) -> None:
+        x, y, t = self.pose
+        if name == "move_forward":
+            step = self.actions.step_m
+            nx, ny = x + step * math.cos(t), y + step * math.sin(t)
+            if self._free(nx, ny):
+                self.path += step
+                x, y = nx, ny
+        elif name in ("turn_left", "turn_right"):
+            t += math.radians(self.actions.turn_deg) * (1 if name == "turn_left" else -1)
+        self.pose = (x, y, t)
+        self.steps += 1
+
     def _free(self, x, y) -> bool:
         inside = RADIUS <= x <= self.width - RADIUS and RADIUS <= y <= self.depth - RADIUS
         return inside and all(b.l2(x, y) > RADIUS for b in self.boxes)
 
-    def _observe(self):
+    def render(self):
+        """(rgb, z-depth unclipped, class ids, instance ids) from the current pose."""
         x, y, t = self.pose
+        cam = self.camera
         c, s = math.cos(t), math.sin(t)
         d = self._dir
         world = np.stack([c * d[..., 0] - s * d[..., 1], s * d[..., 0] + c * d[..., 1],
                           d[..., 2]], -1)
         world[np.abs(world) < 1e-9] = 1e-9
-        o = np.array([x + CAMERA.forward_m * c, y + CAMERA.forward_m * s, CAMERA.height_m])
+        o = np.array([x + cam.forward_m * c, y + cam.forward_m * s, cam.height_m])
         # the room from inside: where the ray leaves it (t is the z-depth: unit-depth rays)
         lo, hi = np.zeros(3), np.array([self.width, self.depth, WALL_H])
         exits = np.maximum((lo - o) / world, (hi - o) / world)
@@ -187,11 +196,17 @@ class GridRoom:
         for k, b in enumerate(self.boxes, 1):
             rgb[inst == k] = PALETTE[b.cls]
             cls[inst == k] = CLASSES.index(b.cls) + 1
+        return rgb, depth, cls, inst
+
+    def _observe(self):
+        rgb, depth, cls, inst = self.render()
+        x, y, t = self.pose
+        cam = self.camera
         dx, dy = x - self.start[0], y - self.start[1]
         sc, ss = math.cos(self.start[2]), math.sin(self.start[2])
         pose = np.array([sc * dx + ss * dy, -ss * dx + sc * dy, t - self.start[2]])
         return {"rgb": rgb,
-                "depth": np.clip(depth, CAMERA.min_depth, CAMERA.max_depth).astype(np.float32),
+                "depth": np.clip(depth, cam.min_depth, cam.max_depth).astype(np.float32),
                 "semantic": np.stack([cls, inst], -1),
                 "pose": pose,
                 "objectgoal": CLASSES.index(self.goal) + 1}
@@ -410,11 +425,53 @@ def test_unknown_classes_and_mismatched_vocabularies():
     agent = ObjectNavAgent.for_env(env, _segmenter(spec), make_extractor("opencv-gist"))
     with pytest.raises(UnknownClassError, match="unknown object class 'chair'"):
         agent.reset("chair")
-    with pytest.raises(EnvSpecError) as e:  # kgnav's vocabulary against the room's
+    with pytest.raises(EnvSpecError) as e:  # kgnav's vocabulary has none of the room's
         ObjectNavAgent.for_env(env, make_segmenter("clean"), make_extractor("opencv-gist"))
-    assert "labels 24 classes" in _one_line(e.value) and "declares 3 (crate" in str(e.value)
+    msg = _one_line(e.value)
+    assert "labels none of the environment's 3 classes (crate, barrel, cone)" in msg
+    assert "it knows 24: chair" in msg
     with pytest.raises(UnknownClassError):
         spec.class_id("chair")
+
+
+class OtherVocabulary:
+    """A segmenter with its own vocabulary: the room's classes in another order, and more."""
+
+    classes = ("tree", "cone", "lamp", "crate", "barrel")
+    name = "other-vocabulary"
+
+    def __init__(self, spec):
+        self.inner = _segmenter(spec)
+
+    def reset(self, seed, scene=""):
+        self.inner.reset(seed, scene)
+
+    def __call__(self, rgb, depth, semantic=None):
+        seg = self.inner(rgb, depth, semantic)
+        mine = np.array([0] + [self.classes.index(c) + 1 for c in CLASSES], np.int32)
+        # what the room calls its object 1 (the crate) this one calls a lamp
+        lamp = set(np.unique(seg.instances[semantic[..., 1] == 1]).tolist()) - {0}
+        out = mine[seg.classes]
+        out[np.isin(seg.instances, list(lamp))] = 3
+        segments = [replace(sg, cls="lamp") if sg.id in lamp else sg for sg in seg.segments]
+        return type(seg)(out, seg.instances, segments)
+
+
+def test_a_segmenter_vocabulary_is_mapped_to_the_environments_by_name():
+    env = GridRoom(0)
+    spec = env.env_spec
+    seg = OtherVocabulary(spec)
+    agent = ObjectNavAgent.for_env(env, seg, make_extractor("opencv-gist"))
+    obs, _ = env.reset(options={"episode": 0})
+    agent.reset("crate")
+    p = agent.extract(obs)
+    ids = set(np.unique(p.segmentation.classes).tolist())
+    names = {sg.cls for sg in p.segmentation.segments}
+    assert names and names <= set(CLASSES) and ids <= {0, 1, 2, 3}
+    crate = obs["semantic"][..., 1] == 1
+    assert crate.any() and not p.segmentation.classes[crate].any()  # the "lamp": dropped
+    info, _ = _run(env, agent, 1)  # the cone, labelled 2 by this segmenter and 3 by the room
+    assert info["success"]
 
 
 def test_specs_refuse_impossible_declarations():
@@ -466,3 +523,123 @@ def test_agent_does_not_import_the_simulator():
             "print(bad); sys.exit(1 if bad else 0)")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert res.returncode == 0, res.stdout + res.stderr
+
+
+# ---------------------------------------------------------------------- the command line
+def _kgnav(argv, capsys) -> tuple[int, str, str]:
+    from kgnav.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    out, err = capsys.readouterr()
+    return e.value.code, out, err
+
+
+def test_cli_eval_takes_an_environment_by_module_path(tmp_path, capsys):
+    out = tmp_path / "eval"
+    code, stdout, err = _kgnav(
+        ["eval", "--env", "tests.test_envs:GridSuite", "--segmenter", "clean",
+         "--extractor", "opencv-gist", "--variants", "ans", "--scenes", "1", "--episodes", "1",
+         "--out", str(out), "--quiet"], capsys)
+    assert code == 0, err
+    (rec,) = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+    assert rec["scene"] == "tests.test_envs_GridSuite-00" and rec["goal"] == "crate"
+    assert rec["spl"] is None and "–" in stdout  # missing metrics shown as a dash
+
+
+@pytest.mark.parametrize(("env", "expected"), [
+    ("nope", "unknown environment 'nope' (known: "),
+    ("tests.test_envs:Nothing", "cannot be imported: AttributeError"),
+    ("no_such_module_xyz:Env", "cannot be imported: ModuleNotFoundError"),
+])
+def test_cli_eval_refuses_unknown_environments_in_one_line(env, expected, capsys):
+    code, _out, err = _kgnav(["eval", "--env", env, "--quiet"], capsys)
+    assert code == 2 and expected in err and len(err.strip().splitlines()) == 1
+
+
+# ---------------------------------------------------------------------- the README's adapter
+README_NAMES = {"crate": "chair", "cone": "desk", "barrel": "barrel"}  # room -> README class
+README_CLASSES = ("chair", "desk", "barrel")
+
+
+class FakeMySim:
+    """The hypothetical ``mysim`` simulator of the README's adapter, played by a GridRoom with
+    the README's camera and kgnav's action geometry."""
+
+    last = None  # the simulator that rendered last, for the ground-truth segmenter
+
+    def __init__(self, scene: str):
+        cam = CameraSpec(128, 96, vfov_deg=60.0, height_m=1.5, max_depth=10.0)
+        self.room = GridRoom(int(scene[-1]), camera=cam, actions=ActionSpec())
+        self.room.start = (0.0, 0.0, 0.0)
+
+    @property
+    def steps(self):
+        return self.room.steps
+
+    def place_agent(self, x, y, t):
+        self.room.pose, self.room.steps, self.room.path = (x, y, t), 0, 0.0
+
+    def agent_pose(self):
+        return self.room.pose
+
+    def act(self, name):
+        self.room.move(name)
+
+    def distance_to(self, goal):
+        x, y, _ = self.room.pose
+        return min(b.l2(x, y) for b in self.room.boxes if README_NAMES[b.cls] == goal)
+
+    def render(self):
+        rgb, depth, cls, inst = self.room.render()
+        ids = np.array([0] + [README_CLASSES.index(README_NAMES[c]) + 1 for c in CLASSES])
+        self.truth = np.stack([ids[cls], inst], -1)
+        FakeMySim.last = self
+        return rgb, depth
+
+
+class MySimTruth:
+    """Ground-truth segmentation of the fake simulator's last frame, in the README's
+    vocabulary (the README's adapter gives no semantic frame)."""
+
+    classes = README_CLASSES
+    name = "mysim-truth"
+
+    def __init__(self, seed=0):
+        cam = Camera.from_intrinsics(128, 96, vfov_deg=60.0, max_depth=10.0)
+        self.inner = make_segmenter("clean", seed, classes=README_CLASSES,
+                                    hfov_deg=cam.hfov_deg, max_depth=10.0)
+
+    def reset(self, seed, scene=""):
+        self.inner.reset(seed, scene)
+
+    def __call__(self, rgb, depth, semantic=None):
+        return self.inner(rgb, depth, FakeMySim.last.truth)
+
+
+def test_the_readme_adapter_runs(monkeypatch):
+    import types
+    from pathlib import Path
+
+    from kgnav.agent.segmenter import SEGMENTERS
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = text[text.index("## Bring your own simulator"):]
+    code = section[section.index("```python\n") + 10:]
+    code = code[:code.index("```")]
+    mysim = types.ModuleType("mysim")
+    mysim.load = FakeMySim
+    mysim.scenes = lambda split: ["room0", "room1"]
+    mysim.episodes = lambda scene: [types.SimpleNamespace(start=s, goal=README_NAMES[g])
+                                    for s, g in EPISODES]
+    monkeypatch.setitem(sys.modules, "mysim", mysim)
+    monkeypatch.setitem(SEGMENTERS, "mysim-truth", MySimTruth)
+    try:
+        exec(compile(code, "README.md", "exec"), {"__name__": "readme_adapter"})
+        cfg = EvalConfig(env="mysim", variants=("ans",), segmenter="mysim-truth",
+                         extractor="opencv-gist", scenes=1, episodes=2)
+        records, summary = run_eval(cfg, None, progress=False)
+    finally:
+        ENVS.pop("mysim", None)
+    assert [(r["scene"], r["goal"]) for r in records] == [("room0", "chair"), ("room0", "desk")]
+    assert all(r["success"] for r in records) and summary["ans"]["spl"] is None

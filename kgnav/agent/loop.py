@@ -34,6 +34,7 @@ from kgnav.agent.memory import Memory
 from kgnav.agent.planner import FMMPlanner, Plan
 from kgnav.agent.policy import FrontierPolicy, GlobalPolicy
 from kgnav.agent.relocation import Relocalizer, Relocation, RelocationConfig
+from kgnav.agent.segmenter import Segmentation
 from kgnav.agent.state_creator import AbstractState, StateCreator
 from kgnav.classes import OBJECT_CLASSES
 from kgnav.envs.spec import ActionSpec, EnvSpecError
@@ -140,8 +141,9 @@ class ObjectNavAgent:
 
     ``memory`` (a :class:`Memory`) turns on relocation and reuse; without it this is the
     paper's memory-less ANS* baseline, still learning an Abstract Model of the episode
-    (``model_``). ``classes`` is the object vocabulary of the map and the models (the
-    segmenter's must be the same); ``actions`` the environment's action indices and geometry:
+    (``model_``). ``classes`` is the object vocabulary of the map and the models; a segmenter
+    labelling another one (its ``classes`` or ``class_names``) is mapped to it by name, its
+    other classes dropped. ``actions``: the environment's action indices and geometry:
     look-arounds, escapes and the bump threshold derive from its step and turn angle.
     :meth:`for_env` takes camera, vocabulary and actions from an environment's spec.
     """
@@ -164,7 +166,7 @@ class ObjectNavAgent:
         self.extractor = extractor
         self.classes = tuple(classes)
         self.actions = actions or ActionSpec()
-        _check_vocabulary(segmenter, self.classes)
+        self._relabel = _vocabulary_map(segmenter, self.classes)
         # a heading within half a turn of the goal cannot be improved by turning
         self._aim_tolerance = max(20.0, self.actions.turn_deg / 2 + 1.0)
         self.policy = policy or FrontierPolicy()
@@ -233,6 +235,8 @@ class ObjectNavAgent:
     # ------------------------------------------------------------------ 1. extraction
     def extract(self, obs) -> Percept:
         seg = self.segmenter(obs["rgb"], obs["depth"], obs.get("semantic"))
+        if self._relabel is not None:
+            seg = _relabel(seg, self._relabel, self.classes)
         features = self.extractor(obs["rgb"])
         columns = self.camera.column_ranges(obs["depth"], self.map_builder.obstacle_band)
         state = self.state_creator(features, seg, obs["depth"], obs["pose"], columns)
@@ -564,12 +568,25 @@ class ObjectNavAgent:
         return mask
 
 
-def _check_vocabulary(segmenter, classes: tuple[str, ...]) -> None:
-    """A segmenter's class ids index its vocabulary: it must be the agent's."""
+
+def _vocabulary_map(segmenter, classes: tuple[str, ...]) -> np.ndarray | None:
+    """None when the segmenter labels with ``classes`` (or does not say); else a table from
+    its class ids to ids of ``classes`` (0: a class the agent's vocabulary lacks)."""
     own = getattr(segmenter, "classes", None) or getattr(segmenter, "class_names", None)
-    if own is not None and tuple(own) != classes:
-        shown = ", ".join(tuple(own)[:6]) + (", ..." if len(own) > 6 else "")
+    if own is None or tuple(own) == classes:
+        return None
+    own = tuple(own)
+    if not set(own) & set(classes):
+        shown = ", ".join(own[:6]) + (", ..." if len(own) > 6 else "")
         raise EnvSpecError(
-            f"segmenter {getattr(segmenter, 'name', type(segmenter).__name__)!r} labels "
-            f"{len(own)} classes ({shown}), the environment declares {len(classes)} "
-            f"({', '.join(classes[:6])}{', ...' if len(classes) > 6 else ''})")
+            f"segmenter {getattr(segmenter, 'name', type(segmenter).__name__)!r} labels none "
+            f"of the environment's {len(classes)} classes ({', '.join(classes[:6])}"
+            f"{', ...' if len(classes) > 6 else ''}); it knows {len(own)}: {shown}")
+    return np.array([0] + [classes.index(c) + 1 if c in classes else 0 for c in own],
+                    np.int32)
+
+
+def _relabel(seg: Segmentation, table: np.ndarray, classes: tuple[str, ...]) -> Segmentation:
+    """A segmentation in the agent's vocabulary: ids mapped, other classes' segments gone."""
+    return Segmentation(table[seg.classes], seg.instances,
+                        [sg for sg in seg.segments if sg.cls in classes])

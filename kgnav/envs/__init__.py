@@ -22,6 +22,7 @@ from kgnav.envs.registry import (
     EnvOptions,
     EnvSuite,
     env_names,
+    find_env,
     make_env,
     register_env,
 )
@@ -44,6 +45,7 @@ __all__ = [
     "check_env",
     "check_observation",
     "env_names",
+    "find_env",
     "make_env",
     "register_env",
 ]

@@ -1,5 +1,10 @@
 """Environments by name: ``register_env`` adds one, ``make_env`` builds its scenes.
 
+A name is found among the registered ones, those that installed packages declare under the
+entry-point group ``kgnav.envs`` (``[project.entry-points."kgnav.envs"] mysim =
+"mysim_kgnav:MySimScenes"``), or, written ``module:attribute``, imported from that module (a
+quick way to try an adapter: ``kgnav eval --env my_adapter:MyScenes``).
+
 A registered factory takes :class:`EnvOptions` (what ``kgnav eval`` was asked for: split or
 directory, image size, step limit, noise; a factory uses what applies to it) and returns an
 :class:`EnvSuite`: its scenes, how many episodes each has, and one
@@ -18,6 +23,7 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
+from importlib.metadata import entry_points
 from typing import Protocol
 
 from kgnav.envs.protocol import NavEnv
@@ -77,16 +83,38 @@ def register_env(*names: str):
 
 
 def env_names() -> list[str]:
-    """Every registered environment name, the plugins' included."""
+    """Every registered environment name, the plugins' and entry points' included."""
     for mod in _PLUGINS:
         importlib.import_module(mod)
+    for ep in entry_points(group="kgnav.envs"):
+        if ep.name not in ENVS:
+            try:
+                ENVS[ep.name] = ep.load()
+            except Exception as e:  # a broken plug-in must not hide the others
+                raise KgnavError(f"environment {ep.name!r} ({ep.value}) does not load: "
+                                 f"{type(e).__name__}: {e}") from None
     return sorted(ENVS)
 
 
-def make_env(name: str = DEFAULT_ENV, options: EnvOptions | None = None) -> EnvSuite:
-    """The scenes of environment ``name`` for ``options`` (default :class:`EnvOptions`)."""
+def find_env(name: str) -> Callable[[EnvOptions], EnvSuite]:
+    """The factory of environment ``name`` (see the module doc), or a one-line error."""
+    if name not in ENVS and ":" in name:
+        module, _, attr = name.partition(":")
+        try:
+            factory = getattr(importlib.import_module(module), attr)
+        except (ImportError, AttributeError) as e:
+            raise KgnavError(f"environment {name!r} cannot be imported: "
+                             f"{type(e).__name__}: {e}") from None
+        if not callable(factory):
+            raise KgnavError(f"environment {name!r} is not a factory (callable)")
+        ENVS[name] = factory
     if name not in ENVS:
         env_names()
     if name not in ENVS:
         raise KgnavError(f"unknown environment {name!r} (known: {', '.join(sorted(ENVS))})")
-    return ENVS[name](options or EnvOptions())
+    return ENVS[name]
+
+
+def make_env(name: str = DEFAULT_ENV, options: EnvOptions | None = None) -> EnvSuite:
+    """The scenes of environment ``name`` for ``options`` (default :class:`EnvOptions`)."""
+    return find_env(name)(options or EnvOptions())

@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import tempfile
 import time
 from collections.abc import Callable, Iterable
@@ -51,7 +52,7 @@ from kgnav.envs import (
     NavEnv,
     check_env,
     check_observation,
-    env_names,
+    find_env,
     make_env,
 )
 from kgnav.errors import KgnavError
@@ -108,9 +109,7 @@ class EvalConfig:
     env: str = DEFAULT_ENV
 
     def __post_init__(self):
-        if self.env not in env_names():
-            raise KgnavError(f"unknown environment {self.env!r} "
-                             f"(known: {', '.join(env_names())})")
+        find_env(self.env)  # a one-line error for an unknown or broken one
         if self.env == "kgnav" and self.scenes_dir is None and self.split not in SPLITS:
             raise KgnavError(f"unknown split {self.split!r} (known: {', '.join(SPLITS)})")
         if self.actuation_noise < 0 or self.odometry_noise < 0:
@@ -180,8 +179,14 @@ def _env(cfg: EvalConfig, scene: int) -> NavEnv:
 
 
 def scene_name(env: NavEnv, cfg: EvalConfig, scene: int) -> str:
-    """The environment's name for a scene (hook ``scene_name``), else ``<env>-<k>``."""
-    return getattr(env, "scene_name", None) or f"{cfg.env}-{scene:02d}"
+    """The environment's name for a scene (hook ``scene_name``), else ``<env>-<k>``; characters
+    a model id cannot hold become ``_`` (models are named after their scene).
+
+    >>> scene_name(object(), EvalConfig(env="kgnav.envs.kgnav_sim:KgnavScenes"), 3)
+    'kgnav.envs.kgnav_sim_KgnavScenes-03'
+    """
+    name = getattr(env, "scene_name", None) or f"{cfg.env}-{scene:02d}"
+    return re.sub(r"[^A-Za-z0-9_.+-]", "_", str(name))[:100]
 
 
 def _extractor(name: str):
@@ -454,7 +459,8 @@ def _run_task(context: dict, task) -> Outcome:
     with tempfile.TemporaryDirectory() as tmp:
         png = Path(tmp) / "topdown.png"
         outcome = run_episode(*args, topdown=str(png))
-        outcome.files[topdown] = png.read_bytes()
+        if png.is_file():  # not every environment can draw itself from above
+            outcome.files[topdown] = png.read_bytes()
     return outcome
 
 
