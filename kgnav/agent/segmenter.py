@@ -162,7 +162,9 @@ class Segmenter(Protocol):
     ``reset(seed, scene)`` starts an episode: it seeds the per-frame noise, and ``scene`` names
     the house so that per-object errors persist across its episodes. Calling it on a frame
     returns a :class:`Segmentation`; ``semantic`` (the simulator's ground truth) is needed only
-    by segmenters built on it. The same seeds, scene and frames give the same output.
+    by segmenters built on it. The same seeds, scene and frames give the same output. A
+    segmenter may name the vocabulary its class ids index (``classes`` or ``class_names``);
+    the agent then maps it to the environment's by name (default: kgnav's classes).
     """
 
     name: str

@@ -649,11 +649,13 @@ def _clear_store(path: Path) -> None:
 def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progress: bool,
                   engine: Engine) -> dict[str, AbstractModel]:
     """The hp/sp memory: one pre-explored model per house, built once per output directory."""
-    key = json.dumps({"split": cfg.source_name, "scenes": cfg.scene_indices, "seed": cfg.seed,
-                      "forget": cfg.forget_below, "agent": asdict(cfg.agent),
-                      "steps": cfg.pre_explore_steps, "extractor": extractor_name,
-                      "segmenter": cfg.segmenter, "size": [cfg.width, cfg.height]},
-                     sort_keys=True)
+    params = {"split": cfg.source_name, "scenes": cfg.scene_indices, "seed": cfg.seed,
+              "forget": cfg.forget_below, "agent": asdict(cfg.agent),
+              "steps": cfg.pre_explore_steps, "extractor": extractor_name,
+              "segmenter": cfg.segmenter, "size": [cfg.width, cfg.height]}
+    if cfg.env != DEFAULT_ENV:  # (kgnav's keys stay as they were: stored memories stay valid)
+        params["env"] = cfg.env
+    key = json.dumps(params, sort_keys=True)
     if _CACHE.get("pre_key") == key:
         return dict(_CACHE["pre_models"]), dict(_CACHE["pre_seen"])
     store_dir = out / "memory" / "pre-explored" if out is not None else None
