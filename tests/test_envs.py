@@ -88,7 +88,7 @@ class GridRoom:
         self.hooks = hooks
         self.camera, self.actions = camera, actions
         self.env_spec = EnvSpec("grid", camera, actions, CLASSES, semantic=True,
-                                max_steps=max_steps)
+                                max_steps=max_steps, agent_radius=RADIUS)
         cam = Camera.from_spec(camera)
         v, u = np.mgrid[0:camera.height, 0:camera.width] + 0.5
         fx, fy, cx, cy = cam.focal, cam._rays[3], cam._rays[4], cam._rays[5]
@@ -287,6 +287,7 @@ def test_agent_finds_goals_with_another_vocabulary_camera_and_turn():
     spec = env.env_spec
     agent = ObjectNavAgent.for_env(env, _segmenter(spec), make_extractor("opencv-gist"))
     assert agent.actions.full_turn == 8 and agent.map_builder.classes == CLASSES
+    assert agent.planner.agent_radius == RADIUS
     successes = 0
     for ep in range(len(EPISODES)):
         info, actions = _run(env, agent, ep)
@@ -510,6 +511,7 @@ def test_kgnav_simulator_declares_what_the_agent_assumed():
     env = make_env("kgnav").make(0, 1)
     spec = env.env_spec
     assert spec.actions == ActionSpec() and spec.classes[0] == "chair" and spec.semantic
+    assert spec.agent_radius == 0.18
     cam = Camera.from_env(env)
     assert cam == Camera(160, 120, 79.0, 0.88, 0.5, 5.0)
     assert np.array_equal(cam.ray_up, Camera().ray_up) and cam.focal == Camera().focal

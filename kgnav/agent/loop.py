@@ -144,7 +144,8 @@ class ObjectNavAgent:
     (``model_``). ``classes`` is the object vocabulary of the map and the models; a segmenter
     labelling another one (its ``classes`` or ``class_names``) is mapped to it by name, its
     other classes dropped. ``actions``: the environment's action indices and geometry:
-    look-arounds, escapes and the bump threshold derive from its step and turn angle.
+    look-arounds, escapes and the bump threshold derive from its step and turn angle;
+    ``agent_radius`` (m) is what the planner keeps off obstacles.
     :meth:`for_env` takes camera, vocabulary and actions from an environment's spec.
     """
 
@@ -160,6 +161,7 @@ class ObjectNavAgent:
         config: AgentConfig | None = None,
         classes: Sequence[str] = OBJECT_CLASSES,
         actions: ActionSpec | None = None,
+        agent_radius: float = 0.18,
     ):
         self.camera = camera
         self.segmenter = segmenter
@@ -170,7 +172,8 @@ class ObjectNavAgent:
         # a heading within half a turn of the goal cannot be improved by turning
         self._aim_tolerance = max(20.0, self.actions.turn_deg / 2 + 1.0)
         self.policy = policy or FrontierPolicy()
-        self.planner = planner or FMMPlanner(turn_tolerance_deg=self._aim_tolerance)
+        self.planner = planner or FMMPlanner(agent_radius=agent_radius,
+                                             turn_tolerance_deg=self._aim_tolerance)
         self.memory = memory
         self.config = config or AgentConfig()
         self.map_builder = MapBuilder(camera, self.config.map_size, self.config.map_resolution,
@@ -185,7 +188,8 @@ class ObjectNavAgent:
         (its :class:`~kgnav.envs.EnvSpec`, or the environment itself)."""
         spec = getattr(spec, "env_spec", spec)
         return cls(Camera.from_spec(spec.camera), segmenter, extractor,
-                   classes=spec.classes, actions=spec.actions, **kw)
+                   classes=spec.classes, actions=spec.actions,
+                   agent_radius=spec.agent_radius, **kw)
 
     # ------------------------------------------------------------------ episode
     def reset(self, goal_class: str | None, *, seed: int = 0, scene: str = "",

@@ -119,7 +119,8 @@ class EnvSpec:
     ``classes``: the object vocabulary; class id ``k`` (1-based) in ``semantic`` and
     ``objectgoal`` is ``classes[k - 1]``. ``semantic``: whether observations carry the
     ground-truth ``semantic`` channel (needed by the noise segmenters only). ``max_steps``:
-    actions per episode before it is truncated.
+    actions per episode before it is truncated. ``agent_radius``: the agent's footprint (m),
+    which the planner keeps off obstacles.
     """
 
     name: str
@@ -128,6 +129,7 @@ class EnvSpec:
     classes: tuple[str, ...] = ()
     semantic: bool = False
     max_steps: int = 500
+    agent_radius: float = 0.18
 
     def __post_init__(self):
         if not self.classes:
@@ -136,6 +138,8 @@ class EnvSpec:
             raise EnvSpecError(f"environment {self.name!r} names a class twice")
         if int(self.max_steps) < 1:
             raise EnvSpecError(f"max_steps must be >= 1, got {self.max_steps}")
+        if not self.agent_radius > 0:
+            raise EnvSpecError(f"agent_radius must be > 0, got {self.agent_radius}")
 
     def class_id(self, name: str) -> int:
         """The 1-based id of class ``name``."""

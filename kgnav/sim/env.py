@@ -36,7 +36,7 @@ from kgnav.sim.episodes import (
     generate_episodes,
     load_scene_of,
 )
-from kgnav.sim.house import Scene
+from kgnav.sim.house import AGENT_RADIUS, Scene
 from kgnav.sim.metrics import SUCCESS_DISTANCE, dts, softspl, spl
 from kgnav.sim.navmesh import NavMap
 from kgnav.sim.render import CAMERA_HEIGHT, HFOV_DEG, MAX_DEPTH, MIN_DEPTH, Renderer
@@ -123,7 +123,8 @@ class ObjectNavEnv(gym.Env):
             CameraSpec(r.width, r.height, hfov_deg=math.degrees(r.hfov), height_m=r.cam_h,
                        min_depth=r.min_depth, max_depth=r.max_depth),
             ActionSpec(ACTION_NAMES, FORWARD_STEP, round(math.degrees(TURN_ANGLE), 9)),
-            classes=OBJECT_CLASSES, semantic=True, max_steps=self.max_steps)
+            classes=OBJECT_CLASSES, semantic=True, max_steps=self.max_steps,
+            agent_radius=AGENT_RADIUS)
         self._next_episode = 0
         self.episode: Episode = self.episodes[0]
         self._world = (0.0, 0.0, 0.0)
