@@ -517,6 +517,28 @@ def test_kgnav_simulator_declares_what_the_agent_assumed():
     assert np.array_equal(cam.ray_up, Camera().ray_up) and cam.focal == Camera().focal
     obs, _ = env.reset(seed=0, options={"episode": 0})
     check_observation(obs, spec)
+    assert spec.observation_space().contains({k: obs[k] for k in spec.observation_space()})
+    assert spec.action_space() == env.action_space
+
+
+def test_observations_fit_the_declared_gymnasium_spaces():
+    env = GridRoom(0)
+    space = env.env_spec.observation_space()
+    obs, _ = env.reset(options={"episode": 1})
+    for a in (0, 1, 0, 2):
+        assert space.contains(obs), {k: (v.dtype, v.shape) for k, v in obs.items()
+                                     if hasattr(v, "dtype")}
+        obs, *_ = env.step(a)
+    assert set(space) == {"rgb", "depth", "pose", "objectgoal", "semantic"}
+
+
+def test_oracle_needs_ground_truth_the_environment_lacks():
+    cfg = EvalConfig(env="grid-test", variants=("oracle",), segmenter="clean",
+                     extractor="opencv-gist", max_steps=5, episodes=1, scenes=1)
+    with pytest.raises(EnvProtocolError) as e:
+        run_eval(cfg, None, progress=False)
+    assert "variant oracle needs the environment's ground truth (navigable_map, world_pose)" in (
+        _one_line(e.value))
 
 
 def test_agent_does_not_import_the_simulator():

@@ -15,6 +15,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from kgnav.errors import KgnavError
 
 #: The ObjectNav action names, in Habitat's (and kgnav's simulator's) index order.
@@ -148,6 +150,26 @@ class EnvSpec:
         if name not in self.classes:
             raise UnknownClassError(name, self.classes)
         return self.classes.index(name) + 1
+
+    def observation_space(self):
+        """The observations as a ``gymnasium.spaces.Dict`` (the keys of
+        :data:`kgnav.envs.protocol.OBSERVATION_KEYS`, and ``semantic`` when declared)."""
+        from gymnasium import spaces
+
+        H, W, cam = self.camera.height, self.camera.width, self.camera
+        obs = {"rgb": spaces.Box(0, 255, (H, W, 3), np.uint8),
+               "depth": spaces.Box(cam.min_depth, cam.max_depth, (H, W), np.float32),
+               "pose": spaces.Box(-np.inf, np.inf, (3,), np.float64),
+               "objectgoal": spaces.Discrete(len(self.classes) + 1)}
+        if self.semantic:
+            obs["semantic"] = spaces.Box(0, np.iinfo(np.int32).max, (H, W, 2), np.int32)
+        return spaces.Dict(obs)
+
+    def action_space(self):
+        """The actions as a ``gymnasium.spaces.Discrete``."""
+        from gymnasium import spaces
+
+        return spaces.Discrete(len(self.actions.names))
 
     def class_name(self, k: int) -> str:
         """The class of 1-based id ``k``."""
