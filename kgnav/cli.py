@@ -339,9 +339,11 @@ def demo(out_dir: Path, worlds: int, episodes: int, steps: int, seed: int, overw
 
 def _register() -> None:
     from kgnav.cli_eval import eval_cmd
+    from kgnav.cli_memory_map import memory_map
     from kgnav.cli_scenes import scenes
 
     app.add_command(eval_cmd)
+    app.add_command(memory_map)
     app.add_command(scenes)
     try:
         from kgnav.cli_encoder import relocation_bench, train_encoder

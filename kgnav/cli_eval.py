@@ -152,6 +152,7 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
                      pre_explore_steps=pre_explore_steps,
                      show=show, actuation_noise=noise[0], odometry_noise=noise[1],
                      agent=PRESETS[preset](), forget_below=0.2 if preset == "default" else 0.0,
+                     forget_label_share=0.5 if preset == "default" else 0.0,
                      preset=preset, policy=policy, env=env_name)
     if show is None:  # the first house's last episode
         cfg = replace(cfg, show=(0, cfg.suite.episode_count(0, episodes) - 1))

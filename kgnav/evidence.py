@@ -193,11 +193,14 @@ class _Rivals:
         return int(self.n_views[near].sum())
 
 
-def forget(model: AbstractModel, below: float = 0.2, belief_model: BeliefModel = DEFAULT_BELIEF
-           ) -> int:
+def forget(model: AbstractModel, below: float = 0.2, belief_model: BeliefModel = DEFAULT_BELIEF,
+           min_label_share: float = 0.0) -> int:
     """Consolidate a memory: remove the objects whose belief has fallen below ``below`` (seen
-    once or twice, then looked at and not seen again: a segmenter's passing mistake). Returns
-    how many were removed. An object the evidence has not yet judged (seen once, never looked
-    at again) stays."""
+    once or twice, then looked at and not seen again: a segmenter's passing mistake), and
+    those whose place gave their class in less than ``min_label_share`` of its views (another
+    label for the same thing won: a segmenter's confusion of one object with a look-alike
+    class, which persists and so is never missed). Returns how many were removed. An object
+    the evidence has not yet judged (seen once, never looked at again) stays."""
     ev = object_evidence(model)
-    return model.remove_objects(o for o, e in ev.items() if belief(e, belief_model) < below)
+    return model.remove_objects(o for o, e in ev.items() if belief(e, belief_model) < below
+                                or (e.n_views and e.label_share < min_label_share))

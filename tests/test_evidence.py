@@ -142,6 +142,13 @@ def test_another_label_at_the_same_place_takes_the_goal_share():
 
     assert choose_goal(m, "sofa", (0, 0), GoalConfig()) is None
     assert choose_goal(m, "sofa", (0, 0), GoalConfig(min_label_share=0.0)).id == sofa
+    # consolidation forgets the minority label, keeps the majority one
+    from kgnav.evidence import forget
+
+    (desk,) = [o for o in m.objects() if m.graph.nodes[o]["cls"] == "desk"]
+    assert forget(m, 0.2, min_label_share=0.0) == 0
+    assert forget(m, 0.2, min_label_share=0.5) == 1
+    assert list(m.objects()) == [desk]
 
 
 def test_belief_model_weights():

@@ -29,7 +29,8 @@ __all__ = ["absorb"]
 def absorb(models: dict[str, AbstractModel], model: AbstractModel, *, into: str | None = None,
            transform: tuple[float, float, float] | None = None,
            bridges: Mapping[str, tuple[float, float, float]] | None = None,
-           forget_below: float = 0.0) -> tuple[str, list[str]]:
+           forget_below: float = 0.0, forget_label_share: float = 0.0
+           ) -> tuple[str, list[str]]:
     """Fold an episode's ``model`` into the memory ``models`` (id -> model, changed in place).
 
     ``into``: the stored model the episode relocated into (and kept as mergeable), with
@@ -37,14 +38,18 @@ def absorb(models: dict[str, AbstractModel], model: AbstractModel, *, into: str 
     Without one (or if it is no longer stored) the episode's model is stored as a new model.
     ``bridges``: other stored models the episode verifiably matched too (id -> episode ->
     model transform); they are merged into ``into`` as well, so separate models of one house
-    join. Objects whose belief fell below ``forget_below`` are then forgotten
+    join. Objects whose belief fell below ``forget_below``, or whose place mostly gave
+    another class (label share below ``forget_label_share``), are then forgotten
     (:func:`kgnav.evidence.forget`). Returns the id of the model that changed and the ids of
     the models folded away (to delete from a store).
     """
+    def consolidate(m: AbstractModel) -> None:
+        if forget_below > 0 or forget_label_share > 0:
+            forget(m, forget_below, min_label_share=forget_label_share)
+
     if into is None or into not in models:
         models[model.model_id] = model
-        if forget_below > 0:
-            forget(model, forget_below)
+        consolidate(model)
         return model.model_id, []
     merged = merge(models[into], model, transform=transform)
     gone = []
@@ -55,7 +60,6 @@ def absorb(models: dict[str, AbstractModel], model: AbstractModel, *, into: str 
         merged = merge(merged, models.pop(mid), transform=se2.compose(transform,
                                                                       se2.inverse(T)))
         gone.append(mid)
-    if forget_below > 0:
-        forget(merged, forget_below)
+    consolidate(merged)
     models[into] = merged
     return into, gone

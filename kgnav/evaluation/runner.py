@@ -100,6 +100,7 @@ class EvalConfig:
     actuation_noise: float = 0.0
     odometry_noise: float = 0.0
     forget_below: float = 0.2  # stored objects whose belief falls below this are forgotten
+    forget_label_share: float = 0.5  # ... and those whose place mostly gave another class
     preset: str = "default"  # the name of the agent settings (recorded in config.json)
     show: tuple[int, int] | None = None  # (scene, episode) to draw from above per variant
     policy: str | None = None  # global policy of ans/si (see variants.with_policy)
@@ -588,7 +589,8 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
                     Path(path).write_bytes(data)
             if variant.learns:
                 for o in outcomes:  # merges in scene order: the same with any worker count
-                    changed, gone = absorb(models, o, cfg.forget_below)
+                    changed, gone = absorb(models, o, cfg.forget_below,
+                                           cfg.forget_label_share)
                     seen.setdefault(o.record["scene"], set()).update(o.seen)
                     if store is not None:
                         store.save(models[changed])
@@ -630,13 +632,13 @@ def _topdown_path(cfg: EvalConfig, out: Path | None, variant: Variant, scene: in
     return str(out / "topdown" / f"{variant.name}_{scene:02d}_e{episode:03d}.png")
 
 
-def absorb(models: dict[str, AbstractModel], o: Outcome, forget_below: float = 0.0
-           ) -> tuple[str, list[str]]:
+def absorb(models: dict[str, AbstractModel], o: Outcome, forget_below: float = 0.0,
+           forget_label_share: float = 0.0) -> tuple[str, list[str]]:
     """Fold an episode's :class:`Outcome` into the memory (in place):
     :func:`kgnav.evaluation.memory_update.absorb` with its model, the model it relocated
     into, the transform and its bridges."""
     return _absorb(models, o.model, into=o.matched, transform=o.transform, bridges=o.bridges,
-                   forget_below=forget_below)
+                   forget_below=forget_below, forget_label_share=forget_label_share)
 
 
 def _clear_store(path: Path) -> None:
@@ -650,7 +652,7 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
                   engine: Engine) -> dict[str, AbstractModel]:
     """The hp/sp memory: one pre-explored model per house, built once per output directory."""
     params = {"split": cfg.source_name, "scenes": cfg.scene_indices, "seed": cfg.seed,
-              "forget": cfg.forget_below, "agent": asdict(cfg.agent),
+              "forget": [cfg.forget_below, cfg.forget_label_share], "agent": asdict(cfg.agent),
               "steps": cfg.pre_explore_steps, "extractor": extractor_name,
               "segmenter": cfg.segmenter, "size": [cfg.width, cfg.height]}
     if cfg.env != DEFAULT_ENV:  # (kgnav's keys stay as they were: stored memories stay valid)
@@ -676,8 +678,8 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
         try:
             tasks = [(cfg, s, extractor_name) for s in cfg.scene_indices]
             for m, saw in engine.map(_pre_task, tasks, {}, bar):
-                if cfg.forget_below > 0:
-                    forget(m, cfg.forget_below)
+                if cfg.forget_below > 0 or cfg.forget_label_share > 0:
+                    forget(m, cfg.forget_below, min_label_share=cfg.forget_label_share)
                 models[m.model_id] = m
                 seen[_house_of(m.model_id)] = saw
         finally:

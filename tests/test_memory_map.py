@@ -1,0 +1,73 @@
+"""Top-down pictures of a memory: real objects are discs, phantoms crosses, in world frame."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from kgnav.cli import main
+from kgnav.errors import KgnavError
+from kgnav.evaluation.memory_map import PALETTE, draw_memory, draw_run
+from kgnav.model import AbstractModel, Detection
+from kgnav.sim.house import generate_house
+from kgnav.sim.topdown import _MARGIN, draw_topdown
+
+PPM = 40.0
+COLOUR = np.array(PALETTE[0])
+
+
+def _px(scene, img, x, y):
+    """Row and column of world (x, y) in a memory picture (below its text band)."""
+    band = img.shape[0] - draw_topdown(scene, labels=False, ppm=PPM).shape[0]
+    return (int(round(_MARGIN + (scene.depth - y) * PPM)) + band,
+            int(round(_MARGIN + x * PPM)))
+
+
+def _model(cls, xy):
+    m = AbstractModel(2, model_id="val_00-e0")
+    for k in range(2):  # seen twice: trusted, drawn large
+        m.add_state([1.0, float(k)], (0, 0, 0), [Detection(cls, (xy[0], xy[1], 0.4))])
+    return m
+
+
+def test_a_real_object_is_a_disc_where_its_frame_puts_it_in_the_world():
+    scene = generate_house(1)
+    real = max(scene.objects, key=lambda o: (o.x1 - o.x0) * (o.y1 - o.y0))
+    cx, cy = (real.x0 + real.x1) / 2, (real.y0 + real.y1) / 2
+    frame = (1.0, 2.0, math.pi / 2)  # the model's origin in the world, turned 90° left
+    local = (cy - 2.0, -(cx - 1.0))  # world (cx, cy) seen from that frame
+    img = draw_memory(scene, [("val_00-e0", _model(real.cls, local), frame)], ppm=PPM)
+    r, c = _px(scene, img, cx, cy)
+    rad = int(0.14 * PPM)
+    assert (img[r, c] == COLOUR).all() and (img[r, c + rad - 2] == COLOUR).all()
+    # with the identity frame the same object lands elsewhere and is a phantom there
+    img2 = draw_memory(scene, [("val_00-e0", _model(real.cls, local), (0.0, 0.0, 0.0))],
+                       ppm=PPM)
+    assert not (img2[r, c] == COLOUR).all()
+
+
+def test_a_phantom_is_a_cross(tmp_path):
+    scene = generate_house(1)
+    # a bed 0.3 m outside the house: no bed there
+    img = draw_memory(scene, [("val_00-e0", _model("bed", (-0.3, -0.3)), (0.0, 0.0, 0.0))],
+                      tmp_path / "m.png", ppm=PPM)
+    r, c = _px(scene, img, -0.3, -0.3)
+    rad = int(0.14 * PPM)
+    assert (img[r, c] == COLOUR).all()  # the arms cross at the centre
+    assert (img[r - rad + 1, c - rad + 1] == COLOUR).all()  # a diagonal arm
+    assert not (img[r, c + rad - 2] == COLOUR).all()  # no disc around it
+    assert (tmp_path / "m.png").stat().st_size > 0
+
+
+def test_a_directory_that_is_not_a_run_is_one_line(tmp_path, capsys):
+    with pytest.raises(KgnavError, match="not a kgnav eval output directory"):
+        draw_run(tmp_path)
+    (tmp_path / "config.json").write_text(json.dumps({"split": "val-small", "episodes": 2}))
+    with pytest.raises(SystemExit) as exc:
+        main(["memory-map", str(tmp_path), "--variant", "si"])
+    assert exc.value.code == 1
+    err = capsys.readouterr().err
+    assert "no stored memory for 'si'" in err and len(err.strip().splitlines()) == 1
