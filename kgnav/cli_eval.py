@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from kgnav.agent.segmenter import SEGMENTER_PRESETS
+from kgnav.errors import KgnavError
 from kgnav.evaluation.engines import ENGINES
 from kgnav.evaluation.failures import FAILURE_CLASSES
 from kgnav.evaluation.variants import VARIANTS
@@ -62,9 +63,14 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
 
 
 @click.command("eval")
-@click.option("--split", type=click.Choice(list(SPLITS)), default="val", show_default=True,
-              help="Built-in houses: train/val (Matterport3D scale), train-small/val-small "
-                   "(the first, small generator).")
+@click.option("--env", "env_name", default="kgnav", show_default=True, metavar="NAME",
+              help="The environment: kgnav (the embedded simulator), any registered with "
+                   "kgnav.envs.register_env or the 'kgnav.envs' entry points, or "
+                   "MODULE:FACTORY.")
+@click.option("--split", default="val", show_default=True,
+              help=f"Which scenes: for --env kgnav one of {', '.join(SPLITS)} (train/val at "
+                   "Matterport3D scale, *-small from the first, small generator); another "
+                   "environment's own names otherwise.")
 @click.option("--scenes-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Run your own houses instead of --split: a directory written by "
                    "'kgnav scenes generate'.")
@@ -116,12 +122,21 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
                    "ppo-semantic.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--quiet", is_flag=True, help="No progress bars.")
-def eval_cmd(split, scenes_dir, variants, out_dir, scenes, episodes, workers, engine, address,
-             segmenter, extractor, threshold, pre_explore_steps, show, noise, preset, policy,
-             seed, quiet) -> None:
+def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, workers, engine,
+             address, segmenter, extractor, threshold, pre_explore_steps, show, noise, preset,
+             policy, seed, quiet) -> None:
     """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
     from kgnav.agent.loop import PRESETS
     from kgnav.agent.policy import make_policy, policy_names
+    from kgnav.envs import find_env
+
+    try:
+        find_env(env_name)
+    except KgnavError as e:
+        raise click.BadParameter(str(e), param_hint="--env") from None
+    if env_name == "kgnav" and scenes_dir is None and split not in SPLITS:
+        raise click.BadParameter(f"unknown split {split!r} (known: {', '.join(SPLITS)})",
+                                 param_hint="--split")
 
     if policy is not None:
         if policy not in policy_names():
@@ -138,9 +153,9 @@ def eval_cmd(split, scenes_dir, variants, out_dir, scenes, episodes, workers, en
                      show=show, actuation_noise=noise[0], odometry_noise=noise[1],
                      agent=PRESETS[preset](), forget_below=0.2 if preset == "default" else 0.0,
                      forget_label_share=0.5 if preset == "default" else 0.0,
-                     preset=preset, policy=policy)
+                     preset=preset, policy=policy, env=env_name)
     if show is None:  # the first house's last episode
-        cfg = replace(cfg, show=(0, len(cfg.source.episodes(0, episodes)) - 1))
+        cfg = replace(cfg, show=(0, cfg.suite.episode_count(0, episodes) - 1))
     _records, summary = run_eval(cfg, out_dir, progress=not quiet)
     print_summary(summary)
     click.echo(f"wrote {out_dir / 'episodes.jsonl'}, {out_dir / 'summary.json'} and plots")
@@ -154,8 +169,8 @@ def print_summary(summary: dict) -> None:
                         "Exploration, Misc)")
     for name, s in summary.items():
         table.add_row(
-            name, str(s["episodes"]), f"{s['success']:.3f}", f"{s['spl']:.3f}",
-            f"{s['softspl']:.3f}", f"{s['dts']:.3f}", f"{s['relocation_rate']:.2f}",
+            name, str(s["episodes"]), f"{s['success']:.3f}", _f(s["spl"], 3),
+            _f(s["softspl"], 3), _f(s["dts"], 3), f"{s['relocation_rate']:.2f}",
             *(str(s["failures"][c]) for c in FAILURE_CLASSES),
             f"{s['episodes_per_second']:.2f}" if s.get("episodes_per_second") else "",
         )
@@ -190,5 +205,6 @@ def print_summary(summary: dict) -> None:
         console.print(t3)
 
 
-def _f(v) -> str:
-    return "–" if v is None else f"{v:.2f}"
+def _f(v, digits: int = 2) -> str:
+    """A number, or a dash where it is missing (no ground truth for it)."""
+    return "–" if v is None else f"{v:.{digits}f}"

@@ -20,6 +20,7 @@ the match to the goal, and keeps watching the live segmentation for the goal on 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -33,10 +34,14 @@ from kgnav.agent.memory import Memory
 from kgnav.agent.planner import FMMPlanner, Plan
 from kgnav.agent.policy import FrontierPolicy, GlobalPolicy
 from kgnav.agent.relocation import Relocalizer, Relocation, RelocationConfig
+from kgnav.agent.segmenter import Segmentation
 from kgnav.agent.state_creator import AbstractState, StateCreator
+from kgnav.classes import OBJECT_CLASSES
+from kgnav.envs.spec import ActionSpec, EnvSpecError
+from kgnav.errors import UnknownClassError
 from kgnav.evidence import ScanTable, belief, object_evidence
 from kgnav.merge import merge
-from kgnav.model import ACTIONS, AbstractModel
+from kgnav.model import AbstractModel
 
 STRATEGIES = ("hard", "soft")
 SOFT_SEARCHES = ("direct", "area")
@@ -136,7 +141,12 @@ class ObjectNavAgent:
 
     ``memory`` (a :class:`Memory`) turns on relocation and reuse; without it this is the
     paper's memory-less ANS* baseline, still learning an Abstract Model of the episode
-    (``model_``).
+    (``model_``). ``classes`` is the object vocabulary of the map and the models; a segmenter
+    labelling another one (its ``classes`` or ``class_names``) is mapped to it by name, its
+    other classes dropped. ``actions``: the environment's action indices and geometry:
+    look-arounds, escapes and the bump threshold derive from its step and turn angle;
+    ``agent_radius`` (m) is what the planner keeps off obstacles.
+    :meth:`for_env` takes camera, vocabulary and actions from an environment's spec.
     """
 
     def __init__(
@@ -149,22 +159,43 @@ class ObjectNavAgent:
         planner: FMMPlanner | None = None,
         memory: Memory | None = None,
         config: AgentConfig | None = None,
+        classes: Sequence[str] = OBJECT_CLASSES,
+        actions: ActionSpec | None = None,
+        agent_radius: float = 0.18,
     ):
         self.camera = camera
         self.segmenter = segmenter
         self.extractor = extractor
+        self.classes = tuple(classes)
+        self.actions = actions or ActionSpec()
+        self._relabel = _vocabulary_map(segmenter, self.classes)
+        # a heading within half a turn of the goal cannot be improved by turning
+        self._aim_tolerance = max(20.0, self.actions.turn_deg / 2 + 1.0)
         self.policy = policy or FrontierPolicy()
-        self.planner = planner or FMMPlanner()
+        self.planner = planner or FMMPlanner(agent_radius=agent_radius,
+                                             turn_tolerance_deg=self._aim_tolerance)
         self.memory = memory
         self.config = config or AgentConfig()
-        self.map_builder = MapBuilder(camera, self.config.map_size, self.config.map_resolution)
+        self.map_builder = MapBuilder(camera, self.config.map_size, self.config.map_resolution,
+                                      classes=self.classes)
         self.state_creator = StateCreator(camera, obstacle_band=self.map_builder.obstacle_band)
         self.relocalizer = (Relocalizer(memory, self.config.relocation)
                             if memory is not None else None)
 
+    @classmethod
+    def for_env(cls, spec, segmenter, extractor: FeatureExtractor, **kw) -> ObjectNavAgent:
+        """An agent with the camera, class vocabulary and actions an environment declares
+        (its :class:`~kgnav.envs.EnvSpec`, or the environment itself)."""
+        spec = getattr(spec, "env_spec", spec)
+        return cls(Camera.from_spec(spec.camera), segmenter, extractor,
+                   classes=spec.classes, actions=spec.actions,
+                   agent_radius=spec.agent_radius, **kw)
+
     # ------------------------------------------------------------------ episode
-    def reset(self, goal_class: str, *, seed: int = 0, scene: str = "", episode: int = 0,
-              model_id: str | None = None) -> None:
+    def reset(self, goal_class: str | None, *, seed: int = 0, scene: str = "",
+              episode: int = 0, model_id: str | None = None) -> None:
+        if goal_class is not None and goal_class not in self.classes:
+            raise UnknownClassError(goal_class, self.classes)
         self.goal = goal_class
         self.episode = int(episode)
         self.segmenter.reset(seed, scene)
@@ -174,7 +205,8 @@ class ObjectNavAgent:
             self.relocalizer.reset()
         self.map_: EpisodeMap = self.map_builder.reset()
         self.model_ = AbstractModel(self.extractor.dim, model_id=model_id,
-                                    extractor=self.extractor.name, scan=self.state_creator.scan)
+                                    extractor=self.extractor.name, scan=self.state_creator.scan,
+                                    classes=self.classes)
         self.current_: AbstractModel = self.model_  # the merged model after a relocation
         self._scans = ScanTable(self.model_)  # range profiles of current_'s states
         self._evidence: dict = {}  # goal candidates' evidence, recounted every few states
@@ -196,17 +228,19 @@ class ObjectNavAgent:
         return self.relocalizer.relocation if self.relocalizer is not None else None
 
     def act(self, obs) -> int:
-        """One step of the paper's cycle; returns the simulator action index."""
+        """One step of the paper's cycle; returns the environment's action index."""
         percept = self.extract(obs)
         self.model_knowledge(percept)
         action = self.reason(percept)
         self._last_action = action
         self.step_ += 1
-        return ACTIONS.index(action)
+        return self.actions.index(action)
 
     # ------------------------------------------------------------------ 1. extraction
     def extract(self, obs) -> Percept:
         seg = self.segmenter(obs["rgb"], obs["depth"], obs.get("semantic"))
+        if self._relabel is not None:
+            seg = _relabel(seg, self._relabel, self.classes)
         features = self.extractor(obs["rgb"])
         columns = self.camera.column_ranges(obs["depth"], self.map_builder.obstacle_band)
         state = self.state_creator(features, seg, obs["depth"], obs["pose"], columns)
@@ -217,7 +251,7 @@ class ObjectNavAgent:
         pose = p.state.pose
         self.map_builder.update(p.depth, pose, p.segmentation)
         if (self._last_action == "move_forward" and self._prev_pose is not None
-                and math.dist(pose[:2], self._prev_pose[:2]) < 0.03):
+                and math.dist(pose[:2], self._prev_pose[:2]) < self.actions.bump_distance):
             self.planner.note_collision(self.map_, self._prev_pose)
             self._bumps += 1
         elif self._last_action == "move_forward":
@@ -314,9 +348,9 @@ class ObjectNavAgent:
 
     def reason(self, p: Percept) -> str:
         if self._bumps >= 3 and not self._escape:
-            # stuck against something the map misses: turn away (alternating sides) and step
+            # stuck against something the map misses: turn away 90° (alternating sides), step
             turn = "turn_right" if (self._bumps // 3) % 2 else "turn_left"
-            self._escape = [turn] * 3 + ["move_forward"]
+            self._escape = [turn] * self.actions.turns(90) + ["move_forward"]
         if self._escape:
             return self._escape.pop(0)
         target = self._choose_target(p)
@@ -391,19 +425,20 @@ class ObjectNavAgent:
             return self._drop(target)
         x, y, th = p.state.pose
         err = se2.wrap_angle(math.atan2(target.point[1] - y, target.point[0] - x) - th)
-        if abs(err) > math.radians(20):
+        if abs(err) > math.radians(self._aim_tolerance):
             return "turn_left" if err > 0 else "turn_right"
         return "turn_left" if target.scan_left % 2 else "turn_right"  # glance around it
 
     def _search(self, target: Target) -> str | None:
-        """Soft strategy at a remembered goal: look all around (12 turns of 30°) on reaching
+        """Soft strategy at a remembered goal: look all around (12 turns of 30°, or what the
+        environment's turn angle makes a full turn) on reaching
         its area, again at the point itself; a goal in view ends the search (see
         :meth:`_choose_target`). If it never shows, the evidence decides: the looks just
         taken count against the remembered object, and if the memory still believes in it
         (an object a segmenter often misses, seen in many earlier visits) the agent goes to
         the point and stops there; otherwise it gives the object up."""
         if target.scan_left is None:
-            target.scan_left = 12
+            target.scan_left = self.actions.full_turn
         target.scan_left -= 1
         if target.scan_left > 0:
             return "turn_left"
@@ -535,3 +570,27 @@ class ObjectNavAgent:
         ii, jj = np.ogrid[i0:i1, j0:j1]
         mask[i0:i1, j0:j1] = (ii - i) ** 2 + (jj - j) ** 2 <= k * k
         return mask
+
+
+
+def _vocabulary_map(segmenter, classes: tuple[str, ...]) -> np.ndarray | None:
+    """None when the segmenter labels with ``classes`` (or does not say); else a table from
+    its class ids to ids of ``classes`` (0: a class the agent's vocabulary lacks)."""
+    own = getattr(segmenter, "classes", None) or getattr(segmenter, "class_names", None)
+    if own is None or tuple(own) == classes:
+        return None
+    own = tuple(own)
+    if not set(own) & set(classes):
+        shown = ", ".join(own[:6]) + (", ..." if len(own) > 6 else "")
+        raise EnvSpecError(
+            f"segmenter {getattr(segmenter, 'name', type(segmenter).__name__)!r} labels none "
+            f"of the environment's {len(classes)} classes ({', '.join(classes[:6])}"
+            f"{', ...' if len(classes) > 6 else ''}); it knows {len(own)}: {shown}")
+    return np.array([0] + [classes.index(c) + 1 if c in classes else 0 for c in own],
+                    np.int32)
+
+
+def _relabel(seg: Segmentation, table: np.ndarray, classes: tuple[str, ...]) -> Segmentation:
+    """A segmentation in the agent's vocabulary: ids mapped, other classes' segments gone."""
+    return Segmentation(table[seg.classes], seg.instances,
+                        [sg for sg in seg.segments if sg.cls in classes])

@@ -217,8 +217,9 @@ class MapBuilder:
         blocking = (up > lo) & (up < hi) & ~far
         H, W = m.shape
 
-        # free space: per column, up to the nearest blocking point (or the sensor range)
-        col_free = np.where(blocking, depth, np.float32(cam.max_depth)).min(axis=0)
+        # free space: per column, up to the nearest blocking point (or the sensor range);
+        # forward is the depth itself for a level camera
+        col_free = np.where(blocking, forward, np.float32(cam.max_depth)).min(axis=0)
         fwd = col_free
         lft = -col_free * cam.ray_right
         ci, cj = self._cells(pose, np.concatenate([[0.0], fwd]), np.concatenate([[0.0], lft]))

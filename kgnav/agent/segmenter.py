@@ -51,11 +51,11 @@ import numpy as np
 
 from kgnav.classes import OBJECT_CLASSES, OBJECTNAV_CLASSES
 from kgnav.errors import KgnavError
-from kgnav.sim.render import HFOV_DEG, MAX_DEPTH, MIN_DEPTH
 
 __all__ = [
     "CONFUSIONS",
     "NoisySegmenter",
+    "GROUND_TRUTH_SEGMENTERS",
     "SEGMENTERS",
     "SEGMENTER_PRESETS",
     "Segment",
@@ -162,7 +162,9 @@ class Segmenter(Protocol):
     ``reset(seed, scene)`` starts an episode: it seeds the per-frame noise, and ``scene`` names
     the house so that per-object errors persist across its episodes. Calling it on a frame
     returns a :class:`Segmentation`; ``semantic`` (the simulator's ground truth) is needed only
-    by segmenters built on it. The same seeds, scene and frames give the same output.
+    by segmenters built on it. The same seeds, scene and frames give the same output. A
+    segmenter may name the vocabulary its class ids index (``classes`` or ``class_names``);
+    the agent then maps it to the environment's by name (default: kgnav's classes).
     """
 
     name: str
@@ -295,28 +297,30 @@ SEGMENTER_PRESETS: dict[str, SegmenterNoise] = {
 }
 _PRESET_NAMES = {"clean": "gt-clean", "default": "gt-noisy", "heavy": "gt-heavy"}
 
-N_CLASSES = len(OBJECT_CLASSES)
-_GOAL_IDS = np.array([OBJECT_CLASSES.index(c) + 1 for c in OBJECTNAV_CLASSES], np.int32)
+#: The segmenters (names and reported names) built on the simulator's ground-truth semantic
+#: frame; they take the environment's camera and vocabulary (``hfov_deg``, ``min_depth``,
+#: ``max_depth``, ``classes``).
+GROUND_TRUTH_SEGMENTERS = (*SEGMENTER_PRESETS, *_PRESET_NAMES.values())
 
 
-def _confusion_lists() -> list[tuple[list[float], list[int]]]:
-    """Per class id: cumulative probabilities and ids of :data:`CONFUSIONS` (row 0 unused)."""
+def _confusion_lists(classes: Sequence[str]) -> list[tuple[list[float], list[int]]]:
+    """Per class id: cumulative probabilities and ids of its confusions (row 0 unused). A
+    class :data:`CONFUSIONS` does not know, or whose confusions are all outside the
+    vocabulary, is confused with any other class of the vocabulary alike."""
     out = []
-    for name in (OBJECT_CLASSES[0], *OBJECT_CLASSES):
-        row = CONFUSIONS[name]
+    for name in (classes[0], *classes):
+        row = [(t, p) for t, p in CONFUSIONS.get(name, ()) if t in classes]
+        row = row or [(t, 1.0) for t in classes if t != name] or [(name, 1.0)]
         w = np.array([p for _, p in row], float)
         cdf = np.cumsum(w / w.sum()).tolist()
         cdf[-1] = 1.0  # exact: a uniform in [0, 1) always picks an entry
-        out.append((cdf, [OBJECT_CLASSES.index(t) + 1 for t, _ in row]))
+        out.append((cdf, [classes.index(t) + 1 for t, _ in row]))
     return out
 
 
-_CONF_PY = _confusion_lists()
-
-
-def _confuse1(c: int, u: float) -> int:
+def _confuse1(table, c: int, u: float) -> int:
     """A confusable class of class id ``c`` picked by the uniform ``u`` in [0, 1)."""
-    cdf, ids = _CONF_PY[c]
+    cdf, ids = table[c]
     return ids[min(bisect.bisect_right(cdf, u), len(ids) - 1)]
 
 
@@ -447,7 +451,9 @@ class NoisySegmenter:
     ``noise`` is a :class:`SegmenterNoise` or a preset name; ``seed`` seeds the noise model (the
     persistent per-object errors depend on it and the scene, not on the episode).
     ``hfov_deg``, ``min_depth`` and ``max_depth`` describe the camera: they size the
-    false-positive blobs and tell valid depth from clipped depth.
+    false-positive blobs and tell valid depth from clipped depth. ``classes``: the vocabulary
+    the semantic frame's class ids index (an environment's; default kgnav's); confusions and
+    false positives stay within it.
     """
 
     def __init__(
@@ -455,9 +461,10 @@ class NoisySegmenter:
         noise: SegmenterNoise | str = "default",
         seed: int = 0,
         *,
-        hfov_deg: float = HFOV_DEG,
-        min_depth: float = MIN_DEPTH,
-        max_depth: float = MAX_DEPTH,
+        hfov_deg: float = 79.0,
+        min_depth: float = 0.5,
+        max_depth: float = 5.0,
+        classes: Sequence[str] = OBJECT_CLASSES,
     ):
         if isinstance(noise, str):
             if noise not in SEGMENTER_PRESETS:
@@ -473,9 +480,19 @@ class NoisySegmenter:
         self._clean = noise.is_clean
         self.tan_half_fov = math.tan(math.radians(hfov_deg) / 2)
         self.min_depth, self.max_depth = float(min_depth), float(max_depth)
+        self.classes = tuple(classes)
+        if not self.classes:
+            raise ValueError("classes must not be empty")
+        n = len(self.classes)
+        self._conf = _confusion_lists(self.classes)
         # false-positive class distribution: the goal classes share fp_goal_share
-        p = np.full(N_CLASSES, (1 - noise.fp_goal_share) / (N_CLASSES - len(_GOAL_IDS)))
-        p[_GOAL_IDS - 1] = noise.fp_goal_share / len(_GOAL_IDS)
+        goal_ids = np.array([self.classes.index(c) + 1 for c in OBJECTNAV_CLASSES
+                             if c in self.classes], np.int32)
+        if 0 < len(goal_ids) < n:
+            p = np.full(n, (1 - noise.fp_goal_share) / (n - len(goal_ids)))
+            p[goal_ids - 1] = noise.fp_goal_share / len(goal_ids)
+        else:  # no goal classes (or nothing else) in this vocabulary: all alike
+            p = np.full(n, 1.0 / n)
         cdf = np.cumsum(p / p.sum())
         cdf[-1] = 1.0
         self._fp_cdf = cdf.tolist()
@@ -524,8 +541,9 @@ class NoisySegmenter:
         gt = _run_stats(inst)
         # an instance takes the class of its first pixel; one on class-0 pixels is no object
         gt_cls = semantic.reshape(-1, 2)[gt.first, 0].tolist()
-        if gt_cls and max(gt_cls) > N_CLASSES:
-            raise ValueError(f"semantic class id {max(gt_cls)} out of range (1..{N_CLASSES})")
+        if gt_cls and max(gt_cls) > len(self.classes):
+            raise ValueError(f"semantic class id {max(gt_cls)} out of range "
+                             f"(1..{len(self.classes)})")
         med = None if self._clean else _median_depth(gt, np.ascontiguousarray(depth).ravel())
         if 0 in gt_cls:
             sel = np.array(gt_cls) > 0
@@ -571,9 +589,9 @@ class NoisySegmenter:
                 continue
             # 2. label: a persistent confusion (shown in most frames), else per-frame flips
             if p[1] < nz.persistent_confusion and u[1] < nz.persistent_consistency:
-                lab = _confuse1(c, p[2])
+                lab = _confuse1(self._conf, c, p[2])
             elif u[2] < nz.confusion + nz.confusion_far * far + nz.confusion_small * small:
-                lab = _confuse1(c, u[3])
+                lab = _confuse1(self._conf, c, u[3])
             else:
                 lab = c
             s = 0.97 - 0.3 * far - 0.25 * small - 0.15 * (lab != c) + nz.score_noise * g
@@ -621,13 +639,14 @@ class NoisySegmenter:
                            gt.g_start[kept])
         ids = st.ids.tolist()
         return Segmentation(classes, instances, _segments(st, [seg_cls[i] for i in ids],
-                                                          [seg_score[i] for i in ids]))
+                                                          [seg_score[i] for i in ids],
+                                                          self.classes))
 
     # ------------------------------------------------------------------ effects
     def _fp_class(self, u: float, not_cls: int = 0) -> int:
         """A false-positive class (goal-weighted); a confusion of ``not_cls`` if it matches."""
-        c = min(bisect.bisect_right(self._fp_cdf, u), N_CLASSES - 1) + 1
-        return _confuse1(c, u) if c == not_cls else c
+        c = min(bisect.bisect_right(self._fp_cdf, u), len(self.classes) - 1) + 1
+        return _confuse1(self._conf, c, u) if c == not_cls else c
 
     @staticmethod
     def _phantom_mask(inst, gt: _RunStats, j: int, p: list[float]):
@@ -663,7 +682,7 @@ class NoisySegmenter:
         i = int(np.argmax(ok))
         v, u, d0 = int(vs[i]), int(us[i]), float(d[i])
         c = self._fp_class(cls_u, int(semantic[v, u, 0]))  # never the true class there
-        hw, hh = _BLOB_HALF_SIZE.get(OBJECT_CLASSES[c - 1], (0.35, 0.35))
+        hw, hh = _BLOB_HALF_SIZE.get(self.classes[c - 1], (0.35, 0.35))
         f = (W / 2) / self.tan_half_fov / d0 * (0.4 + 0.6 * size_u)  # pixels per metre
         ru = int(min(max(2, hw * f), W // 4))
         rv = int(min(max(2, hh * f), H // 4))

@@ -9,6 +9,11 @@ processes, or Ray on a cluster) may run them in parallel with results identical 
 process. Every episode is seeded from ``(seed, scene, episode)``: all variants meet the
 same segmenter noise, which makes their comparison paired.
 
+The scenes come from a registered environment (``EvalConfig.env``, :mod:`kgnav.envs`; kgnav's
+own simulator by default) through the environment protocol only: the agent gets the camera,
+class vocabulary and actions the environment declares, and metrics that need ground truth the
+environment does not offer are recorded as missing (``None``).
+
 >>> cfg = EvalConfig(split="val", variants=("oracle",), scenes=1, episodes=1)
 >>> records, summary = run_eval(cfg, out=None, progress=False)
 >>> records[0]["variant"], records[0]["success"], summary["oracle"]["episodes"]
@@ -20,6 +25,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import tempfile
 import time
 from collections.abc import Callable, Iterable
@@ -35,19 +41,29 @@ from kgnav.agent.loop import AgentConfig, ObjectNavAgent
 from kgnav.agent.memory import Memory
 from kgnav.agent.oracle import OracleAgent
 from kgnav.agent.policy import cooccurrence, make_policy
-from kgnav.agent.segmenter import make_segmenter
+from kgnav.agent.segmenter import GROUND_TRUTH_SEGMENTERS, make_segmenter
 from kgnav.atomic import atomic_open
+from kgnav.envs import (
+    DEFAULT_ENV,
+    EnvOptions,
+    EnvProtocolError,
+    EnvSpec,
+    EnvSuite,
+    NavEnv,
+    check_env,
+    check_observation,
+    find_env,
+    make_env,
+)
 from kgnav.errors import KgnavError
 from kgnav.evaluation import fidelity
 from kgnav.evaluation.engines import Engine, check_settings, make_engine
 from kgnav.evaluation.failures import FAILURE_CLASSES, classify
-from kgnav.evaluation.sources import SceneSource, scene_source
+from kgnav.evaluation.memory_update import absorb as _absorb
 from kgnav.evaluation.stats import paired_differences
 from kgnav.evaluation.variants import VARIANTS, Variant, with_policy
 from kgnav.evidence import forget
-from kgnav.merge import merge
 from kgnav.model import AbstractModel
-from kgnav.sim.env import ObjectNavEnv
 from kgnav.sim.episodes import SPLITS
 from kgnav.store import ModelStore
 
@@ -56,9 +72,11 @@ DEFAULT_THRESHOLD = 0.3  # the paper's, for extractors without a calibrated one
 
 @dataclass(frozen=True)
 class EvalConfig:
-    """What to run. ``split``: a built-in split, or ``scenes_dir``: a directory of your own
-    (``kgnav scenes generate``); ``scenes``: the first K scenes (None: all); ``episodes``: per
-    scene (None: the split's default, or all of a directory's); ``threshold``: relocation
+    """What to run. ``env``: a registered environment (:mod:`kgnav.envs`; ``kgnav``, the
+    embedded simulator, by default); ``split``: a built-in split, or ``scenes_dir``: a
+    directory of your own (``kgnav scenes generate``), passed to the environment in
+    :class:`~kgnav.envs.EnvOptions`; ``scenes``: the first K scenes (None: all); ``episodes``:
+    per scene (None: the split's default, or all of a directory's); ``threshold``: relocation
     cosine distance (None: the extractor's calibrated value); ``actuation_noise`` /
     ``odometry_noise``: the simulator's motion and pose-sensor noise (off, as in ObjectNav).
     ``workers``, ``engine`` and ``address`` (:data:`EXECUTION`) say how to run it, never
@@ -89,9 +107,11 @@ class EvalConfig:
     agent: AgentConfig = field(default_factory=AgentConfig)
     engine: str = "local"
     address: str | None = None
+    env: str = DEFAULT_ENV
 
     def __post_init__(self):
-        if self.scenes_dir is None and self.split not in SPLITS:
+        find_env(self.env)  # a one-line error for an unknown or broken one
+        if self.env == "kgnav" and self.scenes_dir is None and self.split not in SPLITS:
             raise KgnavError(f"unknown split {self.split!r} (known: {', '.join(SPLITS)})")
         if self.actuation_noise < 0 or self.odometry_noise < 0:
             raise KgnavError("noise levels must be >= 0")
@@ -101,10 +121,16 @@ class EvalConfig:
         check_settings(self.engine, self.workers, self.address)
 
     @property
-    def source(self) -> SceneSource:
-        key = ("source", self.split, self.scenes_dir)
+    def env_options(self) -> EnvOptions:
+        return EnvOptions(self.split, self.scenes_dir, self.width, self.height, self.max_steps,
+                          self.actuation_noise, self.odometry_noise)
+
+    @property
+    def suite(self) -> EnvSuite:
+        """The environment's scenes (built once per process)."""
+        key = ("suite", self.env, self.env_options)
         if key not in _CACHE:
-            _CACHE[key] = scene_source(self.split, self.scenes_dir)
+            _CACHE[key] = make_env(self.env, self.env_options)
         return _CACHE[key]
 
     @property
@@ -113,7 +139,7 @@ class EvalConfig:
 
     @property
     def scene_indices(self) -> list[int]:
-        n = len(self.source)
+        n = len(self.suite)
         return list(range(min(self.scenes, n) if self.scenes else n))
 
 
@@ -144,17 +170,24 @@ _CACHE: dict = {}
 _ROUND: dict = {}
 
 
-def _env(cfg: EvalConfig, scene: int) -> ObjectNavEnv:
-    key = ("env", cfg.source_name, scene, cfg.width, cfg.height, cfg.episodes, cfg.max_steps,
-           cfg.actuation_noise, cfg.odometry_noise)
+def _env(cfg: EvalConfig, scene: int) -> NavEnv:
+    key = ("env", cfg.env, cfg.env_options, scene, cfg.episodes)
     if key not in _CACHE:
-        src = cfg.source
-        _CACHE[key] = ObjectNavEnv(src.name, src.scene(scene), cfg.width, cfg.height,
-                                   episodes=src.episodes(scene, cfg.episodes),
-                                   max_steps=cfg.max_steps,
-                                   actuation_noise=cfg.actuation_noise,
-                                   odometry_noise=cfg.odometry_noise)
+        env = cfg.suite.make(scene, cfg.episodes)
+        check_env(env, cfg.env)
+        _CACHE[key] = env
     return _CACHE[key]
+
+
+def scene_name(env: NavEnv, cfg: EvalConfig, scene: int) -> str:
+    """The environment's name for a scene (hook ``scene_name``), else ``<env>-<k>``; characters
+    a model id cannot hold become ``_`` (models are named after their scene).
+
+    >>> scene_name(object(), EvalConfig(env="kgnav.envs.kgnav_sim:KgnavScenes"), 3)
+    'kgnav.envs.kgnav_sim_KgnavScenes-03'
+    """
+    name = getattr(env, "scene_name", None) or f"{cfg.env}-{scene:02d}"
+    return re.sub(r"[^A-Za-z0-9_.+-]", "_", str(name))[:100]
 
 
 def _extractor(name: str):
@@ -172,17 +205,35 @@ def _threshold(cfg: EvalConfig, extractor) -> float:
                          getattr(extractor, "threshold", DEFAULT_THRESHOLD)))
 
 
-def _make_agent(cfg: EvalConfig, variant: Variant, env: ObjectNavEnv, memory: Memory | None,
+def _make_agent(cfg: EvalConfig, variant: Variant, env: NavEnv, memory: Memory | None,
                 extractor_name: str):
+    spec = env.env_spec
     if variant.oracle:
-        return OracleAgent(env)
+        missing = [h for h in ("navigable_map", "world_pose") if not hasattr(env, h)]
+        if missing:
+            raise EnvProtocolError(f"variant oracle needs the environment's ground truth "
+                                   f"({', '.join(missing)}); environment {cfg.env!r} has none")
+        return OracleAgent(env, step=spec.actions.step_m, turn_deg=spec.actions.turn_deg)
     policy = make_policy(variant.policy)
     if variant.policy == "semantic":
         policy.cooccurrence_ = _ROUND.get("cooccurrence", {})
     config = replace(cfg.agent, strategy=variant.strategy)
-    return ObjectNavAgent(Camera.from_env(env), make_segmenter(cfg.segmenter, cfg.seed),
-                          _extractor(extractor_name), policy=policy, memory=memory,
-                          config=config)
+    return ObjectNavAgent.for_env(spec, _segmenter(cfg, spec), _extractor(extractor_name),
+                                  policy=policy, memory=memory, config=config)
+
+
+def _segmenter(cfg: EvalConfig, spec: EnvSpec):
+    """``cfg.segmenter``; a ground-truth one gets the environment's camera and vocabulary."""
+    if cfg.segmenter not in GROUND_TRUTH_SEGMENTERS:
+        return make_segmenter(cfg.segmenter, cfg.seed)
+    if not spec.semantic:
+        raise EnvProtocolError(f"segmenter {cfg.segmenter!r} needs the ground-truth semantic "
+                               f"frame, which environment {spec.name!r} does not provide "
+                               f"(use --segmenter learned)")
+    cam = Camera.from_spec(spec.camera)
+    return make_segmenter(cfg.segmenter, cfg.seed, hfov_deg=cam.hfov_deg,
+                          min_depth=cam.min_depth, max_depth=cam.max_depth,
+                          classes=spec.classes)
 
 
 # ---------------------------------------------------------------------- one episode
@@ -219,21 +270,30 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
                 extractor_name: str, topdown: str | None = None) -> Outcome:
     """One episode of ``variant``; ``topdown``: where to draw it from above (PNG)."""
     env = _env(cfg, scene)
+    spec = env.env_spec
     memory = _ROUND.get("memory") if variant.memory else None
     agent = _make_agent(cfg, variant, env, memory, extractor_name)
     seed = episode_seed(cfg.seed, scene, episode)
     obs, info = env.reset(seed=seed, options={"episode": episode})
-    name = env.scene.name
-    agent.reset(env.goal_class, seed=seed, scene=name, episode=scene * 1000 + episode,
+    check_observation(obs, spec)
+    goal = spec.class_name(int(np.asarray(obs["objectgoal"]).reshape(-1)[0]))
+    name = scene_name(env, cfg, scene)
+    agent.reset(goal, seed=seed, scene=name, episode=scene * 1000 + episode,
                 model_id=f"{name}-e{episode:03d}")
     seen = seen_instances(obs) if variant.learns else set()
-    done = False
+    done, steps = False, 0
     while not done:
         obs, _r, term, trunc, info = env.step(agent.act(obs))
+        check_observation(obs, spec)
+        steps += 1
         done = term or trunc
         if variant.learns:
             seen |= seen_instances(obs)
+    if "success" not in info:
+        raise EnvProtocolError(f"environment {spec.name!r}: the last step's info has no "
+                               f"'success'")
 
+    gt = _GroundTruth(env, name, episode)
     if topdown is not None:
         _draw(env, agent, topdown)
     reloc = agent.relocation_
@@ -241,16 +301,16 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
         "variant": variant.name,
         "scene": name,
         "episode": episode,
-        "episode_id": info["episode_id"],
+        "episode_id": info.get("episode_id"),
         "round": round_,
-        "goal": env.goal_class,
+        "goal": goal,
         "success": bool(info["success"]),
-        "spl": float(info["spl"]),
-        "softspl": float(info["softspl"]),
-        "dts": float(info["dts"]),
-        "steps": int(info["steps"]),
-        "path_length": float(info["path_length"]),
-        "shortest_path_length": float(info["shortest_path_length"]),
+        "spl": _metric(info, "spl"),
+        "softspl": _metric(info, "softspl"),
+        "dts": _metric(info, "dts"),
+        "steps": steps,
+        "path_length": _metric(info, "path_length"),
+        "shortest_path_length": _metric(info, "shortest_path_length"),
         "relocated": reloc is not None,
     }
     target_source, target_err = None, math.inf
@@ -258,20 +318,18 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
         objects = [t for t in agent.log_.targets if t[1] != "explore"]
         if objects:
             _step, target_source, tx, ty, _oid = objects[-1]
-            wx, wy = env.start_frame_to_world(tx, ty)
-            target_err = env.navigable_map().l2_to_class(wx, wy, env.goal_class)
+            target_err = gt.target_error(tx, ty)
         record["stop_reason"] = agent.log_.stop_reason
         record["memory_goal_step"] = next((t[0] for t in objects if t[1] == "memory"), None)
         record["target_source"] = target_source
-        record["target_error"] = None if math.isinf(target_err) else round(target_err, 3)
-    record["failure"] = (None if record["success"] else
-                         "Misc" if variant.oracle else
-                         classify(False, record["dts"], target_source, target_err))
+        record["target_error"] = (None if target_err is None or math.isinf(target_err)
+                                  else round(target_err, 3))
+    record["failure"] = _failure(record, variant, target_source, target_err)
     if not variant.oracle and agent.log_.undone:
-        record["undone"] = [_relocation_fields(env, u) for u in agent.log_.undone]
+        record["undone"] = [_relocation_fields(gt, u) for u in agent.log_.undone]
     if reloc is not None:
         record["relocation"] = {"distance": round(float(reloc.distance), 4),
-                                **_relocation_fields(env, reloc)}
+                                **_relocation_fields(gt, reloc)}
     rel = getattr(agent, "relocalizer", None)
     if rel is not None:  # why hypotheses were accepted or refused, and bridges found
         record["relocation_decisions"] = dict(sorted(rel.decisions.items()))
@@ -283,55 +341,108 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
         if into is not None and rel.bridges:
             bridges = {mid: v.transform for mid, v in rel.bridges.items()}
             record["bridges"] = [
-                {"model": mid, **_relocation_error(env, mid, T, into.at)}
+                {"model": mid, **_relocation_error(gt, mid, T, into.at)}
                 for mid, T in sorted(bridges.items())]
         return Outcome(record, agent.model_, into.transform if into else None,
                        into.model_id if into else None, bridges, seen)
     return Outcome(record)
 
 
-def _draw(env: ObjectNavEnv, agent, path: str) -> None:
+def _metric(info: dict, key: str) -> float | None:
+    """A metric the environment reported, or None when it offers none."""
+    v = info.get(key)
+    return None if v is None else float(v)
+
+
+def _failure(record: dict, variant: Variant, target_source: str | None,
+             target_err: float | None) -> str | None:
+    """The failure class (:mod:`kgnav.evaluation.failures`); None for a success, or when the
+    ground truth it needs (the target's distance to a real goal, DTS) is missing."""
+    if record["success"]:
+        return None
+    if variant.oracle:
+        return "Misc"
+    if target_source is None:
+        return "Exploration"
+    if target_err is None or record["dts"] is None:
+        return None
+    return classify(False, record["dts"], target_source, target_err)
+
+
+class _GroundTruth:
+    """The optional ground-truth hooks of an environment for one episode
+    (:data:`kgnav.envs.GROUND_TRUTH_HOOKS`); every answer is None where a hook is missing."""
+
+    def __init__(self, env: NavEnv, name: str, episode: int):
+        self.env, self.name, self.episode = env, name, episode
+
+    def start(self, i: int):
+        f = getattr(self.env, "episode_start", None)
+        return None if f is None else f(i)
+
+    def target_error(self, x: float, y: float) -> float | None:
+        """L2 distance (m) from an episode-frame point to the nearest real goal instance."""
+        env = self.env
+        l2 = getattr(env, "l2_distance_to_goal", None)
+        if l2 is None:
+            return None
+        to_world = getattr(env, "start_frame_to_world", None)
+        if to_world is not None:
+            wx, wy = to_world(x, y)
+        else:
+            start = self.start(self.episode)
+            if start is None:
+                return None
+            wx, wy = se2.apply_to_point(start, x, y)
+        return float(l2(wx, wy))
+
+
+def _draw(env: NavEnv, agent, path: str) -> None:
+    draw = getattr(env, "topdown", None)
+    if draw is None:  # the environment cannot draw itself from above
+        return
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     m = getattr(agent, "map_", None)
     if m is None:
-        env.topdown(path)
+        draw(path)
         return
-    env.topdown(path, agent_map=m.explored, map_resolution=m.resolution, map_origin=m.corner)
+    draw(path, agent_map=m.explored, map_resolution=m.resolution, map_origin=m.corner)
 
 
-def _relocation_fields(env: ObjectNavEnv, reloc) -> dict:
+def _relocation_fields(gt: _GroundTruth, reloc) -> dict:
     """What ``episodes.jsonl`` says of a relocation, kept or undone: when and into which
     model, whether that model is of this house, its geometric verification (share of inlier
     points, conflicts, points judged), its landmark support and its error."""
     out = {"step": reloc.step, "model": reloc.model_id,
-           "same_house": _house_of(reloc.model_id) == env.scene.name,
+           "same_house": _house_of(reloc.model_id) == gt.name,
            "checked": reloc.checked, "supported": reloc.supported}
     if reloc.inliers is not None:
         out.update(inliers=reloc.inliers, conflicts=reloc.conflicts, points=reloc.points)
-    return {**out, **_relocation_error(env, reloc.model_id, reloc.transform, reloc.at)}
+    return {**out, **_relocation_error(gt, reloc.model_id, reloc.transform, reloc.at)}
 
 
 def _house_of(model_id: str) -> str:
     return model_id.rpartition("-")[0]
 
 
-def _model_frame(env: ObjectNavEnv, model_id: str):
+def _model_frame(gt: _GroundTruth, model_id: str):
     """World pose of a model's frame: models are named ``<house>-e<episode>`` (or
-    ``<house>-pre``) and live in that episode's start frame. None for another house's."""
+    ``<house>-pre``) and live in that episode's start frame. None for another house's, or
+    when the environment does not say where its episodes start."""
     house, _, tag = model_id.rpartition("-")
-    if house != env.scene.name:
+    if house != gt.name:
         return None
-    return env.episodes[0 if tag == "pre" else int(tag[1:])].start
+    return gt.start(0 if tag == "pre" else int(tag[1:]))
 
 
-def _relocation_error(env: ObjectNavEnv, model_id: str, transform, at) -> dict:
+def _relocation_error(gt: _GroundTruth, model_id: str, transform, at) -> dict:
     """How far off a frame transform (episode -> model) is, from ground truth: the error (m)
     of the agent's own position ``at`` mapped into the model frame, and the heading error
-    (degrees). Empty for another house's model."""
-    frame = _model_frame(env, model_id)
+    (degrees). Empty for another house's model, or without ground truth."""
+    frame = _model_frame(gt, model_id)
     if frame is None or at is None:
         return {}
-    truth = se2.compose(se2.inverse(frame), env.episode.start)
+    truth = se2.compose(se2.inverse(frame), gt.start(gt.episode))
     ex, ey = se2.apply_to_point(transform, *at)
     tx, ty = se2.apply_to_point(truth, *at)
     return {"error_m": round(math.hypot(ex - tx, ey - ty), 3),
@@ -349,7 +460,8 @@ def _run_task(context: dict, task) -> Outcome:
     with tempfile.TemporaryDirectory() as tmp:
         png = Path(tmp) / "topdown.png"
         outcome = run_episode(*args, topdown=str(png))
-        outcome.files[topdown] = png.read_bytes()
+        if png.is_file():  # not every environment can draw itself from above
+            outcome.files[topdown] = png.read_bytes()
     return outcome
 
 
@@ -360,26 +472,32 @@ def pre_explore(cfg: EvalConfig, scene: int, extractor_name: str
     left to explore or ``cfg.pre_explore_steps``), and the real instances it saw."""
     env = _env(cfg, scene)
     agent = _make_agent(cfg, VARIANTS["ans"], env, None, extractor_name)
-    saved = env.max_steps
-    env.max_steps = cfg.pre_explore_steps
+    # an environment with a writable step limit explores longer than one episode
+    saved = getattr(env, "max_steps", None)
+    if saved is not None:
+        env.max_steps = cfg.pre_explore_steps
     try:
         seed = episode_seed(cfg.seed, scene, 10**6)
         obs, _info = env.reset(seed=seed, options={"episode": 0})
-        agent.reset(None, seed=seed, scene=env.scene.name, episode=scene * 1000 + 999,
-                    model_id=f"{env.scene.name}-pre")
+        name = scene_name(env, cfg, scene)
+        agent.reset(None, seed=seed, scene=name, episode=scene * 1000 + 999,
+                    model_id=f"{name}-pre")
         seen = seen_instances(obs)
         idle = 0
+        stop = agent.actions.index("stop")
         for _ in range(cfg.pre_explore_steps):
             action = agent.act(obs)
             idle = idle + 1 if agent._target is None else 0
-            if idle >= 12 or action == 0:  # a full turn with nothing left to explore
+            # a full turn with nothing left to explore
+            if idle >= agent.actions.full_turn or action == stop:
                 break
-            obs, _r, _term, trunc, _info = env.step(action)
+            obs, _r, term, trunc, _info = env.step(action)
             seen |= seen_instances(obs)
-            if trunc:
+            if trunc or term:
                 break
     finally:
-        env.max_steps = saved
+        if saved is not None:
+            env.max_steps = saved
     return agent.model_, seen
 
 
@@ -419,7 +537,7 @@ def _bar(total: int, desc: str, progress: bool):
 
 def _episode_count(cfg: EvalConfig) -> list[int]:
     """Episodes per selected scene."""
-    return [len(cfg.source.episodes(s, cfg.episodes)) for s in cfg.scene_indices]
+    return [cfg.suite.episode_count(s, cfg.episodes) for s in cfg.scene_indices]
 
 
 def _rounds_per_call(engine: Engine, houses: int) -> int:
@@ -492,14 +610,19 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
 def memory_fidelity(cfg: EvalConfig, models: dict[str, AbstractModel],
                     seen: dict[str, set[int]]) -> dict:
     """The memory scored against ground truth (:mod:`kgnav.evaluation.fidelity`), per house
-    and pooled."""
+    and pooled; None when the environment offers no ground truth for it (``scene_objects``,
+    ``episode_start``)."""
     per_house = {}
     for k in cfg.scene_indices:
         env = _env(cfg, k)
-        name = env.scene.name
-        mine = [(m, _model_frame(env, mid)) for mid, m in sorted(models.items())
+        objects = getattr(env, "scene_objects", None)
+        if objects is None or not hasattr(env, "episode_start"):
+            return None
+        name = scene_name(env, cfg, k)
+        gt = _GroundTruth(env, name, 0)
+        mine = [(m, _model_frame(gt, mid)) for mid, m in sorted(models.items())
                 if _house_of(mid) == name]
-        per_house[name] = fidelity.score_memory(mine, env.scene.objects, seen.get(name))
+        per_house[name] = fidelity.score_memory(mine, objects(), seen.get(name))
     return {"pooled": fidelity.pooled(per_house), "houses": per_house}
 
 def _topdown_path(cfg: EvalConfig, out: Path | None, variant: Variant, scene: int,
@@ -511,33 +634,11 @@ def _topdown_path(cfg: EvalConfig, out: Path | None, variant: Variant, scene: in
 
 def absorb(models: dict[str, AbstractModel], o: Outcome, forget_below: float = 0.0,
            forget_label_share: float = 0.0) -> tuple[str, list[str]]:
-    """Fold an episode's model into the memory (in place): merged into the model it relocated
-    into, or stored as a new model; a stored model the episode also verifiably matched (a
-    bridge) is merged into that one too, so separate models of one house join. Objects whose
-    belief fell below ``forget_below``, or whose place mostly gave another class
-    (``forget_label_share``), are then forgotten (:func:`kgnav.evidence.forget`).
-    Returns the id of the model that changed and the ids of the models folded away."""
-    def consolidate(m: AbstractModel) -> None:
-        if forget_below > 0 or forget_label_share > 0:
-            forget(m, forget_below, min_label_share=forget_label_share)
-
-    if o.matched is None or o.matched not in models:
-        models[o.model.model_id] = o.model
-        consolidate(o.model)
-        return o.model.model_id, []
-    into = o.matched
-    merged = merge(models[into], o.model, transform=o.transform)
-    gone = []
-    for mid, T in sorted(o.bridges.items()):
-        if mid == into or mid not in models:
-            continue
-        # the bridged model's frame -> the episode's -> the target's
-        merged = merge(merged, models.pop(mid), transform=se2.compose(o.transform,
-                                                                      se2.inverse(T)))
-        gone.append(mid)
-    consolidate(merged)
-    models[into] = merged
-    return into, gone
+    """Fold an episode's :class:`Outcome` into the memory (in place):
+    :func:`kgnav.evaluation.memory_update.absorb` with its model, the model it relocated
+    into, the transform and its bridges."""
+    return _absorb(models, o.model, into=o.matched, transform=o.transform, bridges=o.bridges,
+                   forget_below=forget_below, forget_label_share=forget_label_share)
 
 
 def _clear_store(path: Path) -> None:
@@ -550,12 +651,13 @@ def _clear_store(path: Path) -> None:
 def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progress: bool,
                   engine: Engine) -> dict[str, AbstractModel]:
     """The hp/sp memory: one pre-explored model per house, built once per output directory."""
-    key = json.dumps({"split": cfg.source_name, "scenes": cfg.scene_indices, "seed": cfg.seed,
-                      "forget": [cfg.forget_below, cfg.forget_label_share],
-                      "agent": asdict(cfg.agent),
-                      "steps": cfg.pre_explore_steps, "extractor": extractor_name,
-                      "segmenter": cfg.segmenter, "size": [cfg.width, cfg.height]},
-                     sort_keys=True)
+    params = {"split": cfg.source_name, "scenes": cfg.scene_indices, "seed": cfg.seed,
+              "forget": [cfg.forget_below, cfg.forget_label_share], "agent": asdict(cfg.agent),
+              "steps": cfg.pre_explore_steps, "extractor": extractor_name,
+              "segmenter": cfg.segmenter, "size": [cfg.width, cfg.height]}
+    if cfg.env != DEFAULT_ENV:  # (kgnav's keys stay as they were: stored memories stay valid)
+        params["env"] = cfg.env
+    key = json.dumps(params, sort_keys=True)
     if _CACHE.get("pre_key") == key:
         return dict(_CACHE["pre_models"]), dict(_CACHE["pre_seen"])
     store_dir = out / "memory" / "pre-explored" if out is not None else None
@@ -613,9 +715,9 @@ def summarize(records: Iterable[dict], seed: int = 0) -> dict[str, dict]:
         out[name] = {
             "episodes": n,
             "success": sum(r["success"] for r in recs) / n,
-            "spl": sum(r["spl"] for r in recs) / n,
-            "softspl": sum(r["softspl"] for r in recs) / n,
-            "dts": sum(r["dts"] for r in recs) / n,
+            "spl": _mean(recs, "spl"),
+            "softspl": _mean(recs, "softspl"),
+            "dts": _mean(recs, "dts"),
             "relocation_rate": len(reloc) / n,
             "relocation_same_house": (sum(r["relocation"]["same_house"] for r in reloc)
                                       / len(reloc)) if reloc else None,
@@ -643,6 +745,14 @@ def _later_relocation(recs: list[dict]) -> dict:
         return {}
     return {"relocated_after_first_min": round(min(rates), 3),
             "relocated_after_first_mean": round(float(np.mean(rates)), 3)}
+
+
+def _mean(recs: list[dict], key: str) -> float | None:
+    """The mean of a metric over episodes; None if an episode lacks it (an environment
+    without that ground truth): a mean over some episodes would not be comparable."""
+    if any(r.get(key) is None for r in recs):
+        return None
+    return sum(r[key] for r in recs) / len(recs)
 
 
 def _median(values) -> float | None:

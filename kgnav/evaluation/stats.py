@@ -39,7 +39,8 @@ def paired_differences(records: Iterable[dict], base: str = "ans", metrics=METRI
                        seed: int = 0, n_boot: int = 2000, level: float = 0.95
                        ) -> dict[str, dict[str, dict]]:
     """For every variant other than ``base``: per metric ``{"diff", "low", "high", "pairs"}``
-    over the episodes both ran (matched by scene and episode). Empty without ``base``."""
+    over the episodes both ran (matched by scene and episode) and that have the metric (an
+    environment without its ground truth records None). Empty without ``base``."""
     by: dict[str, dict] = {}
     for r in records:
         by.setdefault(r["variant"], {})[(r.get("scene"), r.get("episode"))] = r
@@ -52,8 +53,10 @@ def paired_differences(records: Iterable[dict], base: str = "ans", metrics=METRI
         keys = sorted(recs.keys() & by[base].keys())
         out[name] = {}
         for m in metrics:
-            d = [float(recs[k][m]) - float(by[base][k][m]) for k in keys]
+            have = [k for k in keys
+                    if recs[k].get(m) is not None and by[base][k].get(m) is not None]
+            d = [float(recs[k][m]) - float(by[base][k][m]) for k in have]
             lo, hi = paired_bootstrap(d, n_boot, level, seed)
             out[name][m] = {"diff": float(np.mean(d)) if d else float("nan"),
-                            "low": lo, "high": hi, "pairs": len(keys)}
+                            "low": lo, "high": hi, "pairs": len(have)}
     return out

@@ -18,9 +18,12 @@ import numpy as np
 from gymnasium import spaces
 
 from kgnav.classes import OBJECT_CLASSES, class_id
+from kgnav.envs.spec import ActionSpec, CameraSpec, EnvSpec
 from kgnav.sim.dynamics import (
     ACTION_NAMES,
+    FORWARD_STEP,
     STOP,
+    TURN_ANGLE,
     Dynamics,
     NoiseModel,
     Odometry,
@@ -33,7 +36,7 @@ from kgnav.sim.episodes import (
     generate_episodes,
     load_scene_of,
 )
-from kgnav.sim.house import Scene
+from kgnav.sim.house import AGENT_RADIUS, Scene
 from kgnav.sim.metrics import SUCCESS_DISTANCE, dts, softspl, spl
 from kgnav.sim.navmesh import NavMap
 from kgnav.sim.render import CAMERA_HEIGHT, HFOV_DEG, MAX_DEPTH, MIN_DEPTH, Renderer
@@ -55,6 +58,10 @@ class ObjectNavEnv(gym.Env):
     Episode choice at ``reset``: ``options={"episode": i}`` (index or :class:`Episode`), else
     ``seed % len(episodes)`` when a seed is given, else the episode after the previous one.
     The seed also seeds the noise generators.
+
+    It implements the environment protocol of :mod:`kgnav.envs` (``env_spec``) with every
+    ground-truth hook (``scene_name``, ``episode_start``, ``start_frame_to_world``,
+    ``l2_distance_to_goal``, ``scene_objects``, ``navigable_map``, ``world_pose``, ``topdown``).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -110,6 +117,14 @@ class ObjectNavEnv(gym.Env):
             "objectgoal": spaces.Discrete(n_cls + 1),
         })
         self.action_space = spaces.Discrete(4)
+        r = self.renderer
+        self.env_spec = EnvSpec(
+            "kgnav",
+            CameraSpec(r.width, r.height, hfov_deg=math.degrees(r.hfov), height_m=r.cam_h,
+                       min_depth=r.min_depth, max_depth=r.max_depth),
+            ActionSpec(ACTION_NAMES, FORWARD_STEP, round(math.degrees(TURN_ANGLE), 9)),
+            classes=OBJECT_CLASSES, semantic=True, max_steps=self.max_steps,
+            agent_radius=AGENT_RADIUS)
         self._next_episode = 0
         self.episode: Episode = self.episodes[0]
         self._world = (0.0, 0.0, 0.0)
@@ -194,6 +209,18 @@ class ObjectNavEnv(gym.Env):
     @property
     def goal_class(self) -> str:
         return self.episode.goal_class
+
+    @property
+    def scene_name(self) -> str:
+        return self.scene.name
+
+    def episode_start(self, i: int):
+        """World start pose (x, y, theta) of episode ``i``."""
+        return self.episodes[i].start
+
+    def scene_objects(self):
+        """The house's object instances (:class:`kgnav.sim.house.ObjectInstance`)."""
+        return self.scene.objects
 
     def navigable_map(self) -> NavMap:
         """Ground-truth navigable map: ``.grid`` (bool, rows = y), ``.resolution``, ``.origin``."""

@@ -1,0 +1,51 @@
+"""Any simulator behind one documented interface (README, *Bring your own simulator*).
+
+* :mod:`kgnav.envs.spec`: what an environment declares (:class:`EnvSpec`: camera, actions,
+  class vocabulary);
+* :mod:`kgnav.envs.protocol`: the observations and the optional ground truth
+  (:class:`NavEnv`, :func:`check_observation`);
+* :mod:`kgnav.envs.registry`: environments by name (:func:`register_env`, :func:`make_env`);
+  kgnav's own simulator is ``kgnav``.
+"""
+
+from kgnav.envs.protocol import (
+    GROUND_TRUTH_HOOKS,
+    OBSERVATION_KEYS,
+    EnvProtocolError,
+    NavEnv,
+    check_env,
+    check_observation,
+)
+from kgnav.envs.registry import (
+    DEFAULT_ENV,
+    ENVS,
+    EnvOptions,
+    EnvSuite,
+    env_names,
+    find_env,
+    make_env,
+    register_env,
+)
+from kgnav.envs.spec import ACTION_NAMES, ActionSpec, CameraSpec, EnvSpec, EnvSpecError
+
+__all__ = [
+    "ACTION_NAMES",
+    "DEFAULT_ENV",
+    "ENVS",
+    "GROUND_TRUTH_HOOKS",
+    "OBSERVATION_KEYS",
+    "ActionSpec",
+    "CameraSpec",
+    "EnvOptions",
+    "EnvProtocolError",
+    "EnvSpec",
+    "EnvSpecError",
+    "EnvSuite",
+    "NavEnv",
+    "check_env",
+    "check_observation",
+    "env_names",
+    "find_env",
+    "make_env",
+    "register_env",
+]

@@ -1,0 +1,120 @@
+"""Environments by name: ``register_env`` adds one, ``make_env`` builds its scenes.
+
+A name is found among the registered ones, those that installed packages declare under the
+entry-point group ``kgnav.envs`` (``[project.entry-points."kgnav.envs"] mysim =
+"mysim_kgnav:MySimScenes"``), or, written ``module:attribute``, imported from that module (a
+quick way to try an adapter: ``kgnav eval --env my_adapter:MyScenes``).
+
+A registered factory takes :class:`EnvOptions` (what ``kgnav eval`` was asked for: split or
+directory, image size, step limit, noise; a factory uses what applies to it) and returns an
+:class:`EnvSuite`: its scenes, how many episodes each has, and one
+:class:`~kgnav.envs.protocol.NavEnv` per scene. kgnav's own simulator is ``kgnav`` (the
+default); it registers on first use so that nothing here imports it.
+
+>>> "kgnav" in env_names()
+True
+>>> suite = make_env("kgnav", EnvOptions(split="val-small"))
+>>> len(suite), suite.name, suite.episode_count(0, 3)
+(11, 'val-small', 3)
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+from typing import Protocol
+
+from kgnav.envs.protocol import NavEnv
+from kgnav.errors import KgnavError
+
+
+@dataclass(frozen=True)
+class EnvOptions:
+    """What a run asks of an environment. ``split``: a named set of scenes (the environment's
+    own names; kgnav's are ``val``, ``train``, ...); ``scenes_dir``: a directory of scenes
+    instead; ``width`` × ``height``: the image size; ``max_steps``: actions per episode;
+    ``actuation_noise``, ``odometry_noise``: motion and pose-sensor noise levels."""
+
+    split: str = "val"
+    scenes_dir: str | None = None
+    width: int = 160
+    height: int = 120
+    max_steps: int = 500
+    actuation_noise: float = 0.0
+    odometry_noise: float = 0.0
+
+
+class EnvSuite(Protocol):
+    """The scenes ``0 .. len - 1`` of an environment."""
+
+    name: str  # names the scene set in config.json (a split, a directory)
+
+    def __len__(self) -> int: ...
+
+    def episode_count(self, k: int, n: int | None = None) -> int:
+        """Episodes of scene ``k`` a run uses: the first ``n`` (None: the default)."""
+        ...
+
+    def make(self, k: int, n: int | None = None) -> NavEnv:
+        """Scene ``k`` with its first ``n`` episodes (indices ``0 .. n - 1`` at ``reset``)."""
+        ...
+
+
+#: Environment factories by name, ``factory(options: EnvOptions) -> EnvSuite``.
+ENVS: dict[str, Callable[[EnvOptions], EnvSuite]] = {}
+# modules that register environments on import, imported on the first unknown name (kgnav's
+# simulator is not imported by code that never asks for it)
+_PLUGINS = ("kgnav.envs.kgnav_sim",)
+
+DEFAULT_ENV = "kgnav"
+
+
+def register_env(*names: str):
+    """Decorator adding an environment factory under one or more names to :data:`ENVS`."""
+
+    def deco(factory):
+        for n in names:
+            ENVS[n] = factory
+        return factory
+
+    return deco
+
+
+def env_names() -> list[str]:
+    """Every registered environment name, the plugins' and entry points' included."""
+    for mod in _PLUGINS:
+        importlib.import_module(mod)
+    for ep in entry_points(group="kgnav.envs"):
+        if ep.name not in ENVS:
+            try:
+                ENVS[ep.name] = ep.load()
+            except Exception as e:  # a broken plug-in must not hide the others
+                raise KgnavError(f"environment {ep.name!r} ({ep.value}) does not load: "
+                                 f"{type(e).__name__}: {e}") from None
+    return sorted(ENVS)
+
+
+def find_env(name: str) -> Callable[[EnvOptions], EnvSuite]:
+    """The factory of environment ``name`` (see the module doc), or a one-line error."""
+    if name not in ENVS and ":" in name:
+        module, _, attr = name.partition(":")
+        try:
+            factory = getattr(importlib.import_module(module), attr)
+        except (ImportError, AttributeError) as e:
+            raise KgnavError(f"environment {name!r} cannot be imported: "
+                             f"{type(e).__name__}: {e}") from None
+        if not callable(factory):
+            raise KgnavError(f"environment {name!r} is not a factory (callable)")
+        ENVS[name] = factory
+    if name not in ENVS:
+        env_names()
+    if name not in ENVS:
+        raise KgnavError(f"unknown environment {name!r} (known: {', '.join(sorted(ENVS))})")
+    return ENVS[name]
+
+
+def make_env(name: str = DEFAULT_ENV, options: EnvOptions | None = None) -> EnvSuite:
+    """The scenes of environment ``name`` for ``options`` (default :class:`EnvOptions`)."""
+    return find_env(name)(options or EnvOptions())
