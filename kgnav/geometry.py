@@ -161,7 +161,7 @@ def occupancy_from_scans(scan: ScanGeometry, poses, ranges, resolution: float = 
         return OccupancyGrid(np.zeros((1, 1), np.uint16), np.zeros((1, 1), np.uint16), 0.0, 0.0,
                              resolution)
     xy = np.array([p[:2] for p in poses])
-    reach = scan.max_range + pad
+    reach = scan.max_range + pad  # (hits beyond, at the edges of the view, are dropped below)
     x0, y0 = xy.min(axis=0) - reach
     x1, y1 = xy.max(axis=0) + reach
     w = int(math.ceil((x1 - x0) / resolution))
@@ -171,15 +171,21 @@ def occupancy_from_scans(scan: ScanGeometry, poses, ranges, resolution: float = 
     one = np.zeros((h, w), np.uint8)
     k = 1.0 / resolution
     for pose, r in zip(poses, ranges, strict=True):
+        # a stored profile is trusted no further than the sensor reaches (a damaged or foreign
+        # value must not reach outside the grid)
+        r = np.nan_to_num(np.asarray(r, np.float64), nan=scan.max_range, posinf=scan.max_range)
+        r = np.clip(r, 0.0, scan.max_range)
         poly = scan.fan(pose, r)
         cells = np.floor((poly - (x0, y0)) * k).astype(np.int32)
-        i0, j0 = cells[:, 1].min(), cells[:, 0].min()
-        i1, j1 = cells[:, 1].max() + 1, cells[:, 0].max() + 1
-        sub = one[i0:i1, j0:j1]
-        sub[:] = 0
-        cv2.fillPoly(sub, [cells - (j0, i0)], 1)
-        free[i0:i1, j0:j1] += sub
+        i0, j0 = max(int(cells[:, 1].min()), 0), max(int(cells[:, 0].min()), 0)
+        i1, j1 = min(int(cells[:, 1].max()) + 1, h), min(int(cells[:, 0].max()) + 1, w)
+        if i0 < i1 and j0 < j1:
+            sub = one[i0:i1, j0:j1]
+            sub[:] = 0
+            cv2.fillPoly(sub, [cells - (j0, i0)], 1)
+            free[i0:i1, j0:j1] += sub
         end = np.floor((scan.endpoints(pose, r) - (x0, y0)) * k).astype(np.int64)
+        end = end[(end[:, 0] >= 0) & (end[:, 0] < w) & (end[:, 1] >= 0) & (end[:, 1] < h)]
         if len(end):
             flat = np.unique(end[:, 1] * w + end[:, 0])
             hits.reshape(-1)[flat] += 1

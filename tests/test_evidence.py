@@ -244,3 +244,25 @@ def test_a_version_1_file_still_loads_and_saves_as_version_2(tmp_path):
     m.save(tmp_path / "v2.graphml")
     again = AbstractModel.load(tmp_path / "v2.graphml")
     assert again == m and '<data key="g0">2</data>' in (tmp_path / "v2.graphml").read_text()
+
+
+def test_occupancy_never_misplaces_edge_hits_and_survives_foreign_ranges():
+    """A hit just short of the sensor's range at the edge of the field of view lies farther than
+    that range, outside the grid sized by it: it is dropped, never wrapped into another row of
+    the grid (nor a crash, as it used to be); ranges beyond the sensor, infinite or NaN are read
+    as no return."""
+    from kgnav.geometry import occupancy_from_scans
+
+    scan = ScanGeometry(79.0, 40, 5.0)
+    r = np.full(40, 4.99, np.float32)
+    pose = (0.0, 0.0, 0.3)
+    occ = occupancy_from_scans(scan, [pose], [r])
+    ends = scan.endpoints(pose, r)
+    h, w = occ.hits.shape
+    inside = [(x, y) for x, y in ends if 0 <= occ.cell(x, y)[0] < h and 0 <= occ.cell(x, y)[1] < w]
+    assert 0 < len(inside) < len(ends)  # the edge bins reach past the grid
+    assert all(occ.state_at(x, y) == "obstacle" for x, y in inside)
+    assert int((occ.hits > 0).sum()) <= len(inside)  # nothing landed anywhere else
+    bad = np.array([np.inf, np.nan, 50.0] + [4.99] * 37, np.float32)
+    occ = occupancy_from_scans(scan, [(0.0, 0.0, 0.0), (1.0, 0.0, 0.0)], [bad, r])
+    assert int(occ.hits.sum()) > 0
