@@ -31,7 +31,7 @@ from kgnav.errors import KgnavError
 from kgnav.evaluation import fidelity
 from kgnav.model import AbstractModel
 from kgnav.sim.house import Scene
-from kgnav.sim.topdown import _MARGIN, draw_topdown
+from kgnav.sim.topdown import _MARGIN, draw_topdown, write_png
 
 #: Model colours (RGB), in model-id order; more models than colours reuse them.
 PALETTE = [(230, 25, 75), (60, 120, 216), (245, 130, 48), (145, 30, 180), (0, 130, 130),
@@ -73,10 +73,7 @@ def draw_memory(scene: Scene, models: Sequence[tuple[str, AbstractModel, tuple]]
                     cv2.LINE_AA)
     img = np.vstack([band, img])
     if path is not None:
-        path = os.fspath(path)
-        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-        if not cv2.imwrite(path, img[..., ::-1]):
-            raise OSError(f"{path}: could not write PNG")
+        write_png(img, path)
     return img
 
 

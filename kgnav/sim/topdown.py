@@ -98,11 +98,16 @@ def draw_topdown(
         cv2.putText(img, f"{episode.episode_id}  goal: {episode.goal_class}", (6, 14),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
     if path is not None:
-        path = os.fspath(path)
-        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-        if not cv2.imwrite(path, img[..., ::-1]):
-            raise OSError(f"{path}: could not write PNG")
+        write_png(img, path)
     return img
+
+
+def write_png(img: np.ndarray, path: str | os.PathLike[str]) -> None:
+    """Write an RGB image as a PNG, creating its directory; OSError if it cannot."""
+    path = os.fspath(path)
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    if not cv2.imwrite(path, img[..., ::-1]):
+        raise OSError(f"{path}: could not write PNG")
 
 
 def _agent(img, px, pose, color, ppm) -> None:
