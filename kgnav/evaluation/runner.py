@@ -320,6 +320,10 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
             _step, target_source, tx, ty, _oid = objects[-1]
             target_err = gt.target_error(tx, ty)
         record["stop_reason"] = agent.log_.stop_reason
+        # every object the agent headed for: when, why, and how far from a real goal
+        record["object_targets"] = [
+            [t[0], t[1], None if (e := gt.target_error(t[2], t[3])) is None else round(e, 2)]
+            for t in objects]
         record["memory_goal_step"] = next((t[0] for t in objects if t[1] == "memory"), None)
         record["target_source"] = target_source
         record["target_error"] = (None if target_err is None or math.isinf(target_err)
@@ -338,6 +342,12 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
         bridges = {}
         if reloc is not None:
             record["relocation"]["merged"] = into is not None
+            final = rel.final.get(reloc.model_id)
+            if final is not None:  # the whole episode's verdict before merging
+                record["relocation"]["final"] = {
+                    "reason": final.reason, "inliers": round(final.inliers, 3),
+                    "conflicts": round(final.conflicts, 3), "points": final.points,
+                    **_relocation_error(gt, reloc.model_id, final.transform, reloc.at)}
         if into is not None and rel.bridges:
             bridges = {mid: v.transform for mid, v in rel.bridges.items()}
             record["bridges"] = [
