@@ -735,13 +735,20 @@ def summarize(records: Iterable[dict], seed: int = 0) -> dict[str, dict]:
             "relocation_step": _median([r["relocation"].get("step") for r in reloc]),
             **_later_relocation(recs),
             "wrong_merges": sum(1 for r in reloc if r["relocation"].get("merged") and (
-                not r["relocation"]["same_house"] or r["relocation"].get("error_m", 0) > 1.0
-                or abs(r["relocation"].get("error_deg", 0)) > 30)),
+                not r["relocation"]["same_house"] or _wrong(r["relocation"]))),
+            "wrong_bridges": sum(1 for r in reloc if r["relocation"].get("merged")
+                                 for b in r.get("bridges", ())
+                                 if _house_of(b["model"]) != r["scene"] or _wrong(b)),
             "failures": {c: sum(r["failure"] == c for r in recs) for c in FAILURE_CLASSES},
         }
     for name, diff in paired_differences(records, "ans", seed=seed).items():
         out[name]["vs_ans"] = diff
     return out
+
+
+def _wrong(fields: dict) -> bool:
+    """A frame transform more than 1 m or 30 degrees off the truth."""
+    return fields.get("error_m", 0) > 1.0 or abs(fields.get("error_deg", 0)) > 30
 
 
 def _later_relocation(recs: list[dict]) -> dict:
