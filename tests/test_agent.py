@@ -285,3 +285,53 @@ def test_transitions_are_counted_once_per_step(env):
     counts = sum(d["count"] for *_e, d in agent.model_.graph.edges(data=True)
                  if d.get("kind") == "transition")
     assert counts == 11
+
+
+def test_look_around_turns_a_full_circle_before_moving(env):
+    """With ``look_around`` the agent turns a full circle first (turns add no path length),
+    unless a goal shows on the way; without it, it sets off at once."""
+    turn = ACTIONS.index("turn_left")
+    full = 0
+    for ep in range(3):
+        agent = _agent(env, look_around=True)
+        obs, _ = env.reset(seed=0, options={"episode": ep})
+        agent.reset(env.goal_class, seed=0, scene=env.scene.name, episode=ep)
+        first = []
+        for _ in range(env.env_spec.actions.full_turn):
+            a = agent.act(obs)
+            first.append(a)
+            obs, *_ = env.step(a)
+            if agent._target is not None and agent._target.is_object:
+                break  # the goal came into view: the turn ends
+        if agent._target is None or not agent._target.is_object:
+            assert first == [turn] * env.env_spec.actions.full_turn
+            full += 1
+        _info, plain = _run(env, _agent(env), ep)
+        assert plain[:12] != [turn] * 12
+    assert full >= 1
+
+
+def test_a_goal_in_view_replaces_a_remembered_one_only_if_believed_as_much(env):
+    """Soft strategy on the way to a chair seen in many earlier visits, a 'chair' glimpsed
+    twice elsewhere (a segmenter's false positive) does not take over with ``live_override =
+    'belief'``; with the paper's ``'always'`` it does. The same place always does."""
+    from kgnav.agent.loop import Target
+    from kgnav.evidence import ScanTable
+    from kgnav.model import AbstractModel, Detection
+
+    m = AbstractModel(4, model_id="mem")
+    for k in range(12):
+        m.add_state(np.eye(4)[k % 4], (0.0, 0.1 * k, 0.0), [Detection("chair", (4.0, 0.0, 0.4))],
+                    episode=k // 4)
+    for k in range(2):
+        m.add_state(np.eye(4)[k], (1.0, 0.0, 0.0), [Detection("chair", (1.0, 3.0, 0.4))])
+    strong, weak = sorted(m.objects(), key=lambda o: -m.graph.nodes[o]["n_views"])
+    for mode, takes in (("belief", False), ("always", True)):
+        agent = _agent(env, memory=Memory({}), live_override=mode)
+        agent.reset("chair")
+        agent.current_, agent._scans = m, ScanTable(m)
+        remembered = Target("memory", (4.0, 0.0), strong)
+        assert agent._overrides(Target("live", (1.0, 3.0), weak), remembered) is takes
+        assert agent._overrides(Target("live", (4.2, 0.1), strong), remembered)
+    with pytest.raises(ValueError, match="live_override"):
+        AgentConfig(live_override="sometimes")

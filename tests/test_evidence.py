@@ -266,3 +266,22 @@ def test_occupancy_never_misplaces_edge_hits_and_survives_foreign_ranges():
     bad = np.array([np.inf, np.nan, 50.0] + [4.99] * 37, np.float32)
     occ = occupancy_from_scans(scan, [(0.0, 0.0, 0.0), (1.0, 0.0, 0.0)], [bad, r])
     assert int(occ.hits.sum()) > 0
+
+
+def test_the_goal_headed_for_stays_unless_another_is_much_closer():
+    """Walking toward one chair past another: the chair already headed for stays the goal
+    while the other is closer by less than ``keep_margin`` (no flip-flopping between two
+    remembered goals, each step re-deciding)."""
+    from kgnav.agent.goals import GoalConfig, choose_goal
+
+    m = AbstractModel(2, model_id="k")
+    for k in range(3):
+        m.add_state([1.0, 0.0], (0, 0.1 * k, 0), [Detection("chair", (3.0, 0.0, 0.4)),
+                                                  Detection("chair", (-4.0, 0.0, 0.4))])
+    near, far = sorted(m.objects(), key=lambda o: abs(m.graph.nodes[o]["x"]))
+    cfg = GoalConfig(keep_margin=1.5)
+    assert choose_goal(m, "chair", (0.0, 0.0), cfg).id == near
+    assert choose_goal(m, "chair", (0.0, 0.0), cfg, current=far).id == far  # 4 m vs 3 m
+    assert choose_goal(m, "chair", (0.0, 0.0), GoalConfig(keep_margin=0.0),
+                       current=far).id == near
+    assert choose_goal(m, "chair", (2.0, 0.0), cfg, current=far).id == near  # 6 m vs 1 m

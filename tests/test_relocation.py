@@ -45,6 +45,10 @@ def cast(walls, pose) -> np.ndarray:
     return out
 
 
+#: Features that match no stored state (cosine distance 0.65 to every unit vector).
+NO_MATCH = np.full(DIM, 1 / math.sqrt(DIM), np.float32)
+
+
 def unit(i: int) -> np.ndarray:
     v = np.zeros(DIM, np.float32)
     v[i % DIM] = 1.0
@@ -239,9 +243,8 @@ def test_the_whole_episode_refuses_a_look_alike_room_of_another_house():
     for k, pose in enumerate(WALK + EAST_WALK):
         m.add_state(unit(k), pose, (), step=k, ranges=cast(HOUSE_1, pose))
     memory = Memory({"h1-e000": m}, threshold=0.05)
-    offset = 100  # feature ids the stored model does not have: no match in the east room
-    states = [AbstractState(unit(offset + k), pose, (), cast(HOUSE_2, pose))
-              for k, pose in enumerate(EAST_WALK * 2)]
+    states = [AbstractState(NO_MATCH, pose, (), cast(HOUSE_2, pose))  # no match in there
+              for pose in EAST_WALK * 2]
     states += [AbstractState(unit(k), pose, (), cast(HOUSE_2, pose))
                for k, pose in enumerate(WALK)]
     for check, merged in ((False, True), (True, False)):
@@ -260,6 +263,50 @@ def test_the_whole_episode_confirms_a_right_match_and_refines_it():
     r = rel.mergeable()
     assert r is not None and rel.final["a-e000"].ok
     assert math.dist(r.transform[:2], T_true[:2]) < 0.05
+
+
+def _episode_model(states, model_id="a-e001") -> AbstractModel:
+    m = AbstractModel(DIM, model_id=model_id, extractor="toy", scan=SCAN)
+    for k, st in enumerate(states):
+        m.add_state(st.features, st.pose, (), step=k, ranges=st.ranges)
+    return m
+
+
+def test_an_episode_that_never_relocated_is_merged_if_the_whole_episode_fits():
+    """Only one state of the episode matches a stored one (one match never confirms a
+    relocation while navigating); at its end the whole episode is judged against the match's
+    transform, fits, and is merged (a late match) in the right frame."""
+    T_true = (2.0, -1.0, 0.7)
+    memory = Memory({"a-e000": stored_model()}, threshold=0.05)
+    states = episode_states(ROOM_A, T_true)
+    states = [AbstractState(s.features if k == 3 else NO_MATCH, s.pose, (), s.ranges)
+              for k, s in enumerate(states)]
+    rel = Relocalizer(memory)
+    assert run(rel, states) is None
+    assert rel.mergeable() is None  # without the episode's model: nothing to look at
+    r = rel.mergeable(_episode_model(states))
+    assert r is not None and r.late and r.model_id == "a-e000"
+    assert math.dist(r.transform[:2], T_true[:2]) < 0.05
+    assert rel.decisions["late match"] == 1
+    off = Relocalizer(memory, RelocationConfig(late_match=False))
+    run(off, states)
+    assert off.mergeable(_episode_model(states)) is None
+
+
+def test_a_late_match_into_another_house_is_refused():
+    """The look-alike room of another house, matched from the whole episode: refused too."""
+    m = AbstractModel(DIM, model_id="h1-e000", extractor="toy", scan=SCAN)
+    for k, pose in enumerate(WALK + EAST_WALK):
+        m.add_state(unit(k), pose, (), step=k, ranges=cast(HOUSE_1, pose))
+    memory = Memory({"h1-e000": m}, threshold=0.05)
+    states = [AbstractState(NO_MATCH, pose, (), cast(HOUSE_2, pose)) for pose in EAST_WALK * 2]
+    states += [AbstractState(unit(k) if k == 2 else NO_MATCH, pose, (), cast(HOUSE_2, pose))
+               for k, pose in enumerate(WALK)]
+    rel = Relocalizer(memory)
+    assert run(rel, states) is None
+    assert rel.mergeable(_episode_model(states)) is None
+    assert rel.decisions["late match"] == 0
+    assert sum(n for k, n in rel.decisions.items() if k.startswith("episode match refused"))
 
 
 @pytest.mark.parametrize("walls", [ROOM_A, ROOM_B])

@@ -34,6 +34,8 @@ class GoalConfig:
     min_label_share: float = 0.5  # the views at its place mostly give the goal class
     belief: BeliefModel = field(default_factory=lambda: DEFAULT_BELIEF)
     evidence_refresh: int = 8  # recount an object's misses after this many new states
+    keep_margin: float = 1.5  # m: the object already headed for stays the goal unless
+    # another is closer by more than this (0: always the closest, the paper)
 
     def __post_init__(self):
         if self.rule not in GOAL_RULES:
@@ -42,10 +44,13 @@ class GoalConfig:
 
 def choose_goal(model: AbstractModel, cls: str, near, config: GoalConfig,
                 exclude=(), table: ScanTable | None = None, among=None,
-                cache: dict | None = None) -> ObjectInfo | None:
+                cache: dict | None = None, current: str | None = None) -> ObjectInfo | None:
     """The object of class ``cls`` to head for from ``near`` (model frame), or None;
     ``among``: consider only these object ids; ``cache``: evidence kept between calls (see
-    :func:`kgnav.evidence.object_evidence`)."""
+    :func:`kgnav.evidence.object_evidence`); ``current``: the object headed for so far, which
+    stays the goal while it qualifies unless another is closer by more than
+    ``config.keep_margin`` (walking past one goal toward another does not flip between them).
+    """
     if among is not None:
         exclude = set(exclude) | {o for o in model._index.by_class.get(cls, ())
                                   if o not in among}
@@ -63,4 +68,5 @@ def choose_goal(model: AbstractModel, cls: str, near, config: GoalConfig,
     if not trusted:
         return None
     x, y = float(near[0]), float(near[1])
-    return min(trusted, key=lambda o: (math.hypot(o.position[0] - x, o.position[1] - y), o.id))
+    return min(trusted, key=lambda o: (math.hypot(o.position[0] - x, o.position[1] - y)
+                                       - (config.keep_margin if o.id == current else 0.0), o.id))

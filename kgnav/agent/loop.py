@@ -45,6 +45,7 @@ from kgnav.model import AbstractModel
 
 STRATEGIES = ("hard", "soft")
 SOFT_SEARCHES = ("direct", "area")
+LIVE_OVERRIDES = ("always", "belief")
 
 __all__ = ["AgentConfig", "EpisodeLog", "ObjectNavAgent", "Percept", "Relocation", "Target"]
 
@@ -62,6 +63,8 @@ class AgentConfig:
     # "area" (the paper): search an area around it whose radius grows with the distance
     soft_radius_factor: float = 0.25  # area search radius per metre from match to goal
     soft_radius_bounds: tuple[float, float] = (1.0, 3.0)
+    live_override: str = "belief"  # soft: a live goal replaces a remembered one only when the
+    # evidence believes it at least as much ("belief"), or "always" (the paper)
     stall_steps: int = 40  # steps without progress toward an object before giving it up
     goals: GoalConfig = field(default_factory=GoalConfig)
     relocation: RelocationConfig = field(default_factory=RelocationConfig)
@@ -69,9 +72,14 @@ class AgentConfig:
     confirm_distance: float = 2.5  # see an object this close before stopping at it (0: off)
     confirm_steps: int = 8  # turns spent looking for it on arrival before giving it up
     map_size: int = 480  # starting side in cells; the map grows
+    look_around: bool = False  # turn a full circle before the first move (turns cost no path
+    # length); with a memory, the turn ends once a relocation is accepted
     map_resolution: float = 0.05
 
     def __post_init__(self):
+        if self.live_override not in LIVE_OVERRIDES:
+            raise ValueError(f"live_override must be one of {LIVE_OVERRIDES}, "
+                             f"got {self.live_override!r}")
         if self.strategy not in STRATEGIES:
             raise ValueError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
         if self.soft_search not in SOFT_SEARCHES:
@@ -83,10 +91,13 @@ class AgentConfig:
         """The paper's settings: goal = closest of the five most-seen objects (seen once is
         enough), relocation on the first feature match with no verification, no landmark
         checks, no remembered geometry, stop on arrival."""
-        base = cls(goals=GoalConfig(rule="views", min_views=1),
+        base = cls(goals=GoalConfig(rule="views", min_views=1, keep_margin=0.0),
                    relocation=RelocationConfig(geometry=False, confirm_matches=1,
-                                               landmark_radius=0.0, bridge_interval=0),
-                   seed_map=False, confirm_distance=0.0, soft_search="area")
+                                               landmark_radius=0.0, bridge_interval=0,
+                                               unique=False, merge_check=False,
+                                               late_match=False),
+                   seed_map=False, confirm_distance=0.0, soft_search="area",
+                   live_override="always", look_around=False)
         return replace(base, **overrides)
 
 
@@ -337,9 +348,12 @@ class ObjectNavAgent:
         return cur
 
     def mergeable(self) -> Relocation | None:
-        """The relocation to merge this episode's model with at its end, or None to store it
-        as a new model (see :meth:`Relocalizer.mergeable`)."""
-        return self.relocalizer.mergeable() if self.relocalizer is not None else None
+        """The relocation to merge this episode's model with at its end (possibly one found
+        only now, from the whole episode), or None to store it as a new model (see
+        :meth:`Relocalizer.mergeable`)."""
+        if self.relocalizer is None:
+            return None
+        return self.relocalizer.mergeable(self.model_)
 
     # ------------------------------------------------------------------ 3. reasoning
     @property
@@ -353,6 +367,11 @@ class ObjectNavAgent:
             self._escape = [turn] * self.actions.turns(90) + ["move_forward"]
         if self._escape:
             return self._escape.pop(0)
+        if (self.config.look_around and self.step_ < self.actions.full_turn
+                and self.relocation_ is None and self._target is None):
+            self._choose_target(p, explore=False)  # a goal in view ends the turn
+            if self._target is None:
+                return "turn_left"
         target = self._choose_target(p)
         for _ in range(3):  # a target reached or given up is replaced within the step
             if target is None:
@@ -462,17 +481,34 @@ class ObjectNavAgent:
         return (belief(ev, goals.belief) >= goals.min_belief
                 and ev.label_share >= goals.min_label_share)
 
+    def _overrides(self, live: Target, remembered: Target) -> bool:
+        """Whether a goal in view replaces the remembered one heading for: always (the
+        paper), or when the evidence believes it at least as much, or it is the same place.
+        A false positive seen twice on the way is believed less than an object seen in many
+        earlier visits."""
+        if self.config.live_override == "always" or remembered.object_id is None:
+            return True
+        if math.dist(live.point, remembered.point) <= 1.0:
+            return True
+        ids = [live.object_id, remembered.object_id]
+        ev = object_evidence(self.current_, ids, table=self._scans, cache=self._evidence,
+                             stale=self.config.goals.evidence_refresh)
+        if remembered.object_id not in ev:
+            return True
+        b = self.config.goals.belief
+        return belief(ev[live.object_id], b) >= belief(ev[remembered.object_id], b)
+
     def _drop(self, target: Target) -> None:
         if target.object_id is not None:
             self.log_.rejected.append(target.object_id)
         self._target = None
         return None
 
-    def _choose_target(self, p: Percept) -> Target | None:
+    def _choose_target(self, p: Percept, explore: bool = True) -> Target | None:
         cur = self._target
         if self._soft and cur is not None and cur.source == "memory":
             live = self._live_goal(p)
-            if live is not None:
+            if live is not None and self._overrides(live, cur):
                 return self._set_target(live)
         if cur is not None and cur.source == "live":
             return cur  # keep approaching what was seen
@@ -483,7 +519,7 @@ class ObjectNavAgent:
                     cur.point = obj.point  # the estimate improves as the object is seen again
                 return cur
             return self._set_target(obj)
-        if cur is not None and cur.is_object:
+        if cur is not None and cur.is_object or not explore:
             return cur
         self._explore_age += 1
         if cur is None or self._explore_age > self.config.explore_interval:
@@ -511,9 +547,11 @@ class ObjectNavAgent:
         if self.goal not in model.classes:
             return None
         near = pose[:2] if self.relocation_ is None else self._to_model(pose)[:2]
+        cur = self._target
         info = choose_goal(model, self.goal, near, self.config.goals,
                            exclude=set(self.log_.rejected), table=self._scans,
-                           cache=self._evidence)
+                           cache=self._evidence,
+                           current=cur.object_id if cur is not None else None)
         if info is None:
             return None
         xy = info.position[:2]

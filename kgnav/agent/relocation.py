@@ -65,6 +65,9 @@ class RelocationConfig:
     unique_margin: float = 0.05  # an alternative within this inlier share makes it ambiguous
     merge_check: bool = True  # before merging, verify the whole episode's scans (and bridges')
     merge_scans: int = 200  # at most this many of the episode's profiles, evenly spread
+    late_match: bool = True  # at the end, look for the models the whole episode fits (a merge
+    # for an episode that never relocated, bridges for one that did)
+    late_hypotheses: int = 2  # transforms judged per model (the most voted by feature matches)
 
 
 @dataclass
@@ -82,6 +85,7 @@ class Relocation:
     inliers: float | None = None  # geometric verification: share of points on stored obstacles
     conflicts: float | None = None
     points: int = 0  # points the verification judged
+    late: bool = False  # found at the episode's end from all its states, not while navigating
 
 
 @dataclass
@@ -183,6 +187,7 @@ class Relocalizer:
         self._failed: list[tuple[int, str, tuple]] = []  # recently refused hypotheses
         self._pairs: list[tuple] = []
         self.final: dict[str, Verdict] = {}  # the whole-episode verdicts, once asked
+        self.late: Relocation | None = None  # the match found at the episode's end
         self._landmarks = (np.zeros((0, 2)), np.zeros(0, dtype=object))
         self._last_bridge = 0
 
@@ -359,28 +364,103 @@ class Relocalizer:
                 return w
         return None
 
-    def episode_verdicts(self) -> dict[str, Verdict]:
-        """Before merging: the standing relocation's model and every bridge, each judged
-        against the whole episode's range profiles (at most ``merge_scans`` of them, evenly
-        spread), including the ambiguity test. A match that looked right on the last few
-        metres of a corridor, or in one room of a look-alike pair, rarely survives the whole
-        episode's view of the place."""
+    def _merge_scans(self) -> list:
         c = self.config
-        out: dict[str, Verdict] = {}
-        r = self.relocation
-        if r is None or not c.geometry:
-            return out
         scans = self._all
         if len(scans) > c.merge_scans:
             scans = [scans[i] for i in np.linspace(0, len(scans) - 1, c.merge_scans).astype(int)]
-        todo = [(r.model_id, r.transform)]
-        todo += [(mid, b.transform) for mid, b in sorted(self.bridges.items())]
-        for mid, T in todo:
-            v = self.verify(mid, T, scans)
-            if v.ok and c.unique and self.ambiguity(mid, v, scans) is not None:
-                v = Verdict(False, "ambiguous", v.transform, v.inliers, v.conflicts, v.points)
-            out[mid] = v
-        return out
+        return scans
+
+    def _episode_verdict(self, model_id: str, T, scans) -> Verdict:
+        """``T`` judged against the whole episode's profiles ``scans``, ambiguity included."""
+        v = self.verify(model_id, T, scans)
+        if v.ok and self.config.unique and self.ambiguity(model_id, v, scans) is not None:
+            v = Verdict(False, "ambiguous", v.transform, v.inliers, v.conflicts, v.points)
+        return v
+
+    def _episode_hypotheses(self, episode, refused: dict) -> dict[str, list]:
+        """Frame transforms into stored models proposed by the feature matches of the
+        episode's states (about a hundred of them, evenly spread): per model, the
+        ``late_hypotheses`` most voted (agreeing transforms vote together), skipping those
+        that agree with a transform already refused for that model."""
+        ids, feats = episode.state_features()
+        votes: dict[str, list] = {}
+        for i in range(0, len(ids), max(1, len(ids) // 100)):
+            pose = episode.pose(ids[i])
+            for m in self._matches(feats[i]):
+                T = se2.anchor_transform(self.memory.model(m.model_id).pose(m.state_id), pose)
+                if any(self._agree(T, u) for u in refused.get(m.model_id, ())):
+                    continue
+                clusters = votes.setdefault(m.model_id, [])
+                for cl in clusters:
+                    if self._agree(cl[0], T):
+                        cl[1] += 1
+                        break
+                else:
+                    clusters.append([T, 1])
+        k = self.config.late_hypotheses
+        return {mid: [cl[0] for cl in sorted(cls, key=lambda cl: -cl[1])[:k]]
+                for mid, cls in votes.items()}
+
+    def mergeable(self, episode=None) -> Relocation | None:
+        """The relocation to merge the episode with at its end, or None to store it as a new
+        model.
+
+        One that stood but that landmarks supported only weakly, or (with ``merge_check``)
+        that the whole episode's scans refute, would misplace a whole episode for good and is
+        not merged. With ``merge_check``, bridges too must fit the whole episode, and with
+        ``late_match`` and the ``episode``'s model, the feature matches of all its states
+        propose more: the other stored models the whole episode verifiably fits become
+        bridges, or, when no relocation stands, the best of them the model to merge into
+        (``late``). A look at the whole episode finds what the few steps of a corridor or a
+        doorway could not, and separate models of one house join. The verdicts are kept in
+        :attr:`final` and counted in :attr:`decisions`."""
+        c = self.config
+        r = self.relocation
+        if r is not None and self.refuted(r, c.merge_support):
+            r = None
+        if not (c.merge_check and c.geometry):
+            return r
+        scans = self._merge_scans()
+        self.final = {}
+        refused: dict[str, list] = {}
+        if r is not None:
+            v = self.final[r.model_id] = self._episode_verdict(r.model_id, r.transform, scans)
+            if v.ok:
+                r.transform = v.transform  # aligned on the whole episode: the most precise
+            else:
+                self.decisions[f"merge refused: {v.reason}"] += 1
+                refused[r.model_id] = [r.transform]
+                r = None
+        hyps: dict[str, list] = {mid: [b.transform] for mid, b in self.bridges.items()}
+        if episode is not None and c.late_match:
+            for mid, Ts in self._episode_hypotheses(episode, refused).items():
+                hyps.setdefault(mid, []).extend(Ts)
+        found: dict[str, Verdict] = {}
+        for mid, Ts in sorted(hyps.items()):
+            if r is not None and mid == r.model_id:
+                continue
+            for T in Ts:
+                v = self._episode_verdict(mid, T, scans)
+                if not v.ok:
+                    self.decisions[f"episode match refused: {v.reason}"] += 1
+                elif (mid not in found
+                             or v.inliers - v.conflicts > found[mid].inliers - found[mid].conflicts):
+                    found[mid] = v
+            if mid in found:
+                self.final[mid] = found[mid]
+        dropped = set(self.bridges) - set(found)
+        self.decisions["bridge refuted by episode"] += len(dropped)
+        if r is None and found and c.late_match:
+            mid = max(sorted(found), key=lambda m: found[m].inliers - found[m].conflicts)
+            v = found.pop(mid)
+            r = self.late = Relocation(len(self._all), mid, "", math.nan, v.transform, (0.0, 0.0),
+                                       inliers=round(v.inliers, 3),
+                                       conflicts=round(v.conflicts, 3), points=v.points,
+                                       late=True)
+            self.decisions["late match"] += 1
+        self.bridges = found if r is not None else {}
+        return r
 
     def _episode_geometry(self, scans):
         ends, fans = [], []
@@ -474,29 +554,6 @@ class Relocalizer:
         """Enough landmark checks (``verify_checks``), and fewer than ``share`` support ``r``."""
         need = self.config.verify_checks
         return need > 0 and r.checked >= need and r.supported < share * r.checked
-
-    def mergeable(self) -> Relocation | None:
-        """The relocation to merge the episode with at its end, or None: one that stood but
-        that landmarks supported only weakly, or that the whole episode's scans refute
-        (:meth:`episode_verdicts`, with ``merge_check``), would misplace a whole episode for
-        good. Bridges the whole episode refutes are dropped (:attr:`bridges`)."""
-        r = self.relocation
-        if r is None or self.refuted(r, self.config.merge_support):
-            return None
-        if self.config.merge_check and self.config.geometry:
-            verdicts = self.final = self.episode_verdicts()
-            for mid in list(self.bridges):
-                if not verdicts[mid].ok:
-                    self.decisions["bridge refuted by episode"] += 1
-                    del self.bridges[mid]
-                else:
-                    self.bridges[mid] = verdicts[mid]
-            v = verdicts[r.model_id]
-            if not v.ok:
-                self.decisions[f"merge refused: {v.reason}"] += 1
-                return None
-            r.transform = v.transform  # aligned on the whole episode: the most precise
-        return r
 
     def refine(self, state) -> None:
         """Without geometric verification, correct the transform with landmarks (with it,

@@ -341,13 +341,15 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
         into = agent.mergeable()
         bridges = {}
         if reloc is not None:
-            record["relocation"]["merged"] = into is not None
+            record["relocation"]["merged"] = into is reloc
             final = rel.final.get(reloc.model_id)
             if final is not None:  # the whole episode's verdict before merging
                 record["relocation"]["final"] = {
                     "reason": final.reason, "inliers": round(final.inliers, 3),
                     "conflicts": round(final.conflicts, 3), "points": final.points,
                     **_relocation_error(gt, reloc.model_id, final.transform, reloc.at)}
+        if into is not None and into.late:  # found from the whole episode at its end
+            record["late_merge"] = _relocation_fields(gt, into)
         if into is not None and rel.bridges:
             bridges = {mid: v.transform for mid, v in rel.bridges.items()}
             record["bridges"] = [
@@ -734,9 +736,10 @@ def summarize(records: Iterable[dict], seed: int = 0) -> dict[str, dict]:
             "relocation_error_m": _median([r["relocation"].get("error_m") for r in reloc]),
             "relocation_step": _median([r["relocation"].get("step") for r in reloc]),
             **_later_relocation(recs),
-            "wrong_merges": sum(1 for r in reloc if r["relocation"].get("merged") and (
-                not r["relocation"]["same_house"] or _wrong(r["relocation"]))),
-            "wrong_bridges": sum(1 for r in reloc if r["relocation"].get("merged")
+            "late_merges": sum(1 for r in recs if "late_merge" in r),
+            "wrong_merges": sum(1 for r in recs for m in _merges(r)
+                                if not m["same_house"] or _wrong(m)),
+            "wrong_bridges": sum(1 for r in recs if any(True for _ in _merges(r))
                                  for b in r.get("bridges", ())
                                  if _house_of(b["model"]) != r["scene"] or _wrong(b)),
             "failures": {c: sum(r["failure"] == c for r in recs) for c in FAILURE_CLASSES},
@@ -744,6 +747,14 @@ def summarize(records: Iterable[dict], seed: int = 0) -> dict[str, dict]:
     for name, diff in paired_differences(records, "ans", seed=seed).items():
         out[name]["vs_ans"] = diff
     return out
+
+
+def _merges(record: dict):
+    """What an episode was merged into: its relocation, if merged, or its late match."""
+    if record.get("relocated") and record["relocation"].get("merged"):
+        yield record["relocation"]
+    if "late_merge" in record:
+        yield record["late_merge"]
 
 
 def _wrong(fields: dict) -> bool:
