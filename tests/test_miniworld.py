@@ -232,7 +232,7 @@ def test_mesh_footprints_are_miniworld_s(env):
 
 
 # ---------------------------------------------------------------------- ground truth
-def test_houses_are_seeded_and_connected():
+def test_houses_are_seeded_and_connected(suite):
     a, b = mwh.generate_house(7, "a"), mwh.generate_house(7, "a")
     assert a.objects == b.objects and a.doors == b.doors and np.array_equal(a.nav.grid,
                                                                              b.nav.grid)
@@ -247,7 +247,7 @@ def test_houses_are_seeded_and_connected():
             assert h.nav.is_navigable(*ep.start[:2]) and h.objects_of(ep.goal_class)
 
 
-def test_geodesic_distances_are_sane():
+def test_geodesic_distances_are_sane(suite):
     h = mwh.generate_house(0, "h0")
     nav = h.nav
     rng = np.random.default_rng(0)
