@@ -563,14 +563,16 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
     store_dir = out / "memory" / variant.name if (out is not None and variant.learns) else None
     models: dict[str, AbstractModel] = {}
     seen: dict[str, set[int]] = {}  # per house, the real instances its episodes saw
+    threshold = _threshold(cfg, _extractor(extractor_name)) if variant.memory else None
     if variant.memory == "pre":
         models, seen = _pre_explored(cfg, extractor_name, out, progress, engine)
+        for m in models.values():  # matched at this run's threshold
+            m.relocation_threshold = threshold
     if store_dir is not None:
         _clear_store(store_dir)
     store = ModelStore(store_dir) if store_dir is not None else None
     bar = _bar(sum(counts.values()), variant.name, progress)
     records: list[dict] = []
-    threshold = _threshold(cfg, _extractor(extractor_name)) if variant.memory else None
     step = 1 if variant.learns else _rounds_per_call(engine, len(scenes))
     try:
         for r0 in range(0, rounds, step):
