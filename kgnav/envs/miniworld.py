@@ -15,8 +15,9 @@ Seeded multi-room houses (:mod:`kgnav.envs.miniworld_house`) rendered by MiniWor
   with geodesic distances over the navigable grid, episode starts, the objects, the navigable
   map and true pose for the oracle, a picture from above).
 
-Splits (``--split``): ``val`` (10 houses), ``train`` (40 other houses, for recalibrating
-features), ``tiny`` (2 of the val houses, the tests'); 10 episodes a house by default.
+Splits (``--split``): ``val`` (10 houses), ``train`` (40 other houses, for retraining
+features), ``calib`` (10 more, for calibrating thresholds on houses neither trained on nor
+evaluated), ``tiny`` (2 of the val houses, the tests'); 10 episodes a house by default.
 MiniWorld is imported, and its OpenGL context opened, only when a scene first renders, and
 in the process that renders it.
 
@@ -53,6 +54,7 @@ __all__ = ["SPLITS", "MiniWorldHouses", "MiniWorldNav"]
 SPLITS: dict[str, tuple[int, ...]] = {
     "val": tuple(range(10)),
     "train": tuple(range(1000, 1040)),
+    "calib": tuple(range(500, 510)),
     "tiny": (0, 1),
 }
 EPISODES_PER_HOUSE = 10
