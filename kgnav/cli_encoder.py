@@ -294,16 +294,18 @@ def relocation_bench(split: str | None, out_dir: Path, extractors: list[str], pa
         ps = build_pairs(views, exts, n_pos=pairs, seed=seed,
                          progress=lambda done, total: bar.update(done - bar.n))
     results = {}
-    for e in exts:
-        if e.name in thresholds:
-            thr, src = thresholds[e.name], "--threshold"
+    for name, e in zip(extractors, exts, strict=True):  # reported by the names asked for
+        if name in thresholds:
+            thr, src = thresholds[name], "--threshold"
         elif getattr(e, "threshold", None) is not None:
             thr = float(e.threshold)
             src = e.meta.get("threshold_source", "stored") if hasattr(e, "meta") else \
                 "the extractor's default"
         else:
             thr, src = None, ""
-        results[e.name] = {"dim": e.dim, **evaluate(ps, e.name, thr, src, target_precision)}
+        results[name] = {"dim": e.dim, **evaluate(ps, e.name, thr, src, target_precision)}
+        if e.name != name:
+            results[name]["features"] = e.name  # e.g. kgnav-encoder:<fingerprint>
     report = {
         "format": "kgnav-relocation-bench",
         "version": 1,

@@ -139,3 +139,57 @@ def test_train_encoder_on_another_environment(tmp_path, cli):
 def test_bad_environment_arguments_are_one_line_usage_errors(tmp_path, cli, args, expected):
     code, _out, err = cli("relocation-bench", "--out", tmp_path / "o", *args, "--quiet")
     assert code == 2 and err.count("\n") == 1 and expected in err, err
+
+
+# ---------------------------------------------------------------------- using such weights
+@pytest.fixture(scope="module")
+def grid_weights(sampler, tmp_path_factory):
+    """A (barely) trained encoder on the grid room's frames, threshold 0.05."""
+    from kgnav.encoder.train import TrainConfig, Trainer
+
+    cfg = TrainConfig(seed=0, steps=1, dim=8, houses_per_batch=2, places_per_house=2,
+                      split=f"{GRID}:train", n_houses=len(sampler))
+    path = tmp_path_factory.mktemp("w") / "grid.npz"
+    Trainer(cfg, sampler=sampler).fit().export(0.05, "test").save(path)
+    return path
+
+
+def test_other_weights_are_another_extractor(grid_weights, tmp_path):
+    from kgnav.encoder.extractor import LOOP_THRESHOLD, LearnedEncoder
+    from kgnav.encoder.weights import DEFAULT_WEIGHTS, set_threshold
+
+    shipped = LearnedEncoder(device="cpu")
+    assert shipped.name == "kgnav-encoder" and shipped.loop_threshold == LOOP_THRESHOLD
+    copy = tmp_path / "copy.npz"
+    copy.write_bytes(DEFAULT_WEIGHTS.read_bytes())
+    set_threshold(copy, 0.01, "recalibrated")  # same features: same extractor
+    assert LearnedEncoder(copy, device="cpu").name == "kgnav-encoder"
+    other = LearnedEncoder(grid_weights, device="cpu")
+    fp = load_weights(grid_weights).fingerprint()
+    assert other.name == f"kgnav-encoder:{fp}" and len(fp) == 12
+    assert other.loop_threshold == other.threshold == 0.05  # its own, not the shipped one's
+
+
+def test_eval_with_retrained_encoder_weights(grid_weights, tmp_path, cli):
+    from kgnav import AbstractModel
+
+    out = tmp_path / "ev"
+    code, _out, err = cli("eval", "--env", GRID, "--segmenter", "clean", "--variants", "si",
+                          "--episodes", "2", "--encoder-weights", grid_weights, "--out", out,
+                          "--quiet")
+    assert code == 0, err
+    fp = load_weights(grid_weights).fingerprint()
+    config = json.loads((out / "config.json").read_text())
+    assert config["features"] == f"kgnav-encoder:{fp}"
+    assert config["encoder_weights"] == str(grid_weights)
+    stored = sorted((out / "memory" / "si").glob("*.graphml"))
+    assert stored
+    for p in stored:
+        m = AbstractModel.load(p)
+        assert m.extractor == f"kgnav-encoder:{fp}" and m.relocation_threshold == 0.05
+    code, _out, err = cli("eval", "--env", GRID, "--extractor", "opencv-gist",
+                          "--encoder-weights", grid_weights, "--out", out, "--quiet")
+    assert code == 2 and err.count("\n") == 1 and "--encoder-weights" in err
+    code, _out, err = cli("eval", "--env", GRID, "--encoder-weights", tmp_path / "none.npz",
+                          "--out", out, "--quiet")
+    assert code == 1 and err.count("\n") == 1 and "none.npz" in err
