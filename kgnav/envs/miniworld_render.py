@@ -18,8 +18,9 @@ geometry into list 1, so a world recompiles it when another world drew last.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
-import math
+import io
 import os
 
 import numpy as np
@@ -71,8 +72,11 @@ class MiniWorldRenderer:
                 renderer._build(self, ent)
 
         try:
-            self.world = World(obs_width=camera.width, obs_height=camera.height,
-                               window_width=320, window_height=240, max_episode_steps=10**9)
+            # (MiniWorld prints the multisampling it falls back to on stdout, the tables' stream)
+            with contextlib.redirect_stdout(io.StringIO()):
+                self.world = World(obs_width=camera.width, obs_height=camera.height,
+                                   window_width=320, window_height=240,
+                                   max_episode_steps=10**9)
         except KgnavError:
             raise
         except Exception as e:
@@ -224,8 +228,3 @@ class _LabelBuffer:
         gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, 0)
         return self._rgb[::-1].copy(), self._depth[::-1].astype(np.float64)
 
-
-def hfov_of(camera) -> float:
-    """Horizontal field of view (degrees) of a camera given by its vertical one."""
-    return math.degrees(2 * math.atan(math.tan(math.radians(camera.vfov_deg) / 2)
-                                      * camera.width / camera.height))
