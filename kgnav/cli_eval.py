@@ -202,7 +202,8 @@ def print_summary(summary: dict) -> None:
         console.print(t2)
     mem = {n: s for n, s in summary.items() if "memory" in s}
     if mem:
-        t3 = Table("variant", "reloc. after 1st (min/mean)", "reloc. step", "wrong merges",
+        t3 = Table("variant", "reloc. after 1st (min/mean)", "reloc. step",
+                   "wrong merges (bridges)",
                    "models/house", "objects", "precision (trusted)", "copies", "recall",
                    title="Relocation and memory fidelity (against ground truth)")
         for name, s in mem.items():
@@ -211,7 +212,7 @@ def print_summary(summary: dict) -> None:
             t3.add_row(
                 name, "–" if lo is None else f"{lo:.2f} / {mean:.2f}",
                 "–" if s.get("relocation_step") is None else f"{s['relocation_step']:.0f}",
-                str(s.get("wrong_merges", 0)),
+                f"{s.get('wrong_merges', 0)} ({s.get('wrong_bridges', 0)})",
                 " ".join(f"{k}:{v}" for k, v in p["models_per_house"].items()),
                 str(p["objects"]), f"{_f(p['precision'])} ({_f(p['trusted_precision'])})",
                 _f(p["copies"]), _f(p["recall"]))

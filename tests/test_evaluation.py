@@ -52,6 +52,22 @@ def test_summary_is_the_mean_of_records():
     assert s["failures"]["Detection"] == 1 and sum(s["failures"].values()) == 1
 
 
+def test_wrong_merges_and_bridges_are_counted_from_ground_truth():
+    def rec(merged, error_m, bridges=(), same=True, scene="h"):
+        return {"variant": "si", "scene": scene, "success": True, "spl": 1.0, "softspl": 1.0,
+                "dts": 0.0, "relocated": True, "failure": None, "bridges": list(bridges),
+                "relocation": {"same_house": same, "merged": merged, "error_m": error_m,
+                               "error_deg": 0.0}}
+    recs = [rec(True, 0.1), rec(True, 1.5), rec(False, 3.0), rec(True, 0.2, same=False),
+            rec(True, 0.1, [{"model": "h-e001", "error_m": 0.05, "error_deg": 178.0},
+                            {"model": "h-e002", "error_m": 0.05, "error_deg": 1.0},
+                            {"model": "other-e000"}]),
+            rec(False, 0.1, [{"model": "h-e003", "error_m": 9.0, "error_deg": 0.0}])]
+    s = summarize(recs)["si"]
+    assert s["wrong_merges"] == 2  # 1.5 m off, and into another house; unmerged ones don't count
+    assert s["wrong_bridges"] == 2  # turned round, and another house's model
+
+
 def test_variants_parse_and_config_checks():
     assert [v.name for v in parse_variants("si, ans,si")] == ["si", "ans"]
     with pytest.raises(KgnavError, match="unknown variant 'x'"):

@@ -185,6 +185,83 @@ def test_a_second_model_of_the_same_room_is_found_as_a_bridge():
     assert math.dist(T[:2], want[:2]) < 0.1 and se2.angle_diff(T[2], want[2]) < 0.05
 
 
+# A corridor 1.6 m wide and 24 m long, with doorways (gaps) every 6 m: along it the side
+# walls fit any shift, and a profile sees no end.
+CORRIDOR = [((0, 0), (2.5, 0)), ((3.5, 0), (8.5, 0)), ((9.5, 0), (14.5, 0)),
+            ((15.5, 0), (24, 0)), ((0, 1.6), (24, 1.6))]
+CORRIDOR_WALK = [(6.0 + 0.5 * k, 0.8, a) for k in range(10) for a in (0.0, 1.2, -1.2)]
+
+
+def test_a_match_shifted_along_a_corridor_is_ambiguous():
+    """The features point 1.5 m down the corridor from where the agent is: the side walls fit
+    perfectly there too (the old check accepted it, inliers 1.0); the ambiguity test sees that
+    shifted starts fit as well and refuses it."""
+    m = AbstractModel(DIM, model_id="c-e000", extractor="toy", scan=SCAN)
+    for k, pose in enumerate(CORRIDOR_WALK):
+        m.add_state(unit(k), pose, (), step=k, ranges=cast(CORRIDOR, pose))
+    memory = Memory({"c-e000": m}, threshold=0.05)
+    shift = (1.5, 0.0, 0.0)  # the true frame is 1.5 m further along than the match says
+    states = [AbstractState(unit(k), se2.compose(shift, pose), (), cast(CORRIDOR, pose))
+              for k, pose in enumerate(CORRIDOR_WALK)]
+    old = Relocalizer(memory, RelocationConfig(unique=False))
+    r = run(old, states)
+    assert r is not None and math.dist(r.transform[:2], (-1.5, 0.0)) < 0.2  # wrong, accepted
+    new = Relocalizer(memory)
+    assert run(new, states) is None
+    assert new.decisions["ambiguous"] > 0
+
+
+def test_a_distinct_room_is_not_ambiguous():
+    memory = Memory({"a-e000": stored_model()}, threshold=0.05)
+    rel = Relocalizer(memory)
+    r = run(rel, episode_states(ROOM_A, (2.0, -1.0, 0.7)))
+    assert r is not None and rel.decisions["ambiguous"] == 0
+    v = rel.verify("a-e000", r.transform)
+    assert v.ok and rel.ambiguity("a-e000", v) is None
+
+
+# House 1: room A and, east of it through a door, a 5 x 4 m room with a pillar. House 2: the
+# same room A (a look-alike) next to a narrow 3 m room.
+HOUSE_1 = ROOM_A[:1] + [((6, 0), (6, 1.5)), ((6, 2.5), (6, 4))] + ROOM_A[2:] + [
+    ((6, 0), (11, 0)), ((11, 0), (11, 4)), ((11, 4), (6, 4)),
+    ((8, 1.5), (9, 1.5)), ((9, 1.5), (9, 2.5)), ((9, 2.5), (8, 2.5)), ((8, 2.5), (8, 1.5))]
+HOUSE_2 = HOUSE_1[:7] + [((6, 0), (9, 0)), ((9, 0), (9, 4)), ((9, 4), (6, 4))]
+EAST_WALK = [(7.0, 1.0, 0.0), (7.0, 3.0, -0.6), (7.5, 2.0, 0.3), (8.5, 0.7, 1.5),
+             (7.0, 2.0, -0.2), (8.0, 3.3, -1.3), (6.8, 1.2, 0.8), (7.6, 3.0, -0.5)]
+
+
+def test_the_whole_episode_refuses_a_look_alike_room_of_another_house():
+    """The episode (house 2) explored its narrow room, then walked into its copy of room A,
+    where the last scans match house 1's room A perfectly and the relocation is accepted. The
+    whole episode does not fit house 1: its east wall stands in house 1's open floor. The
+    merge is refused; without the whole-episode check it would have been merged."""
+    m = AbstractModel(DIM, model_id="h1-e000", extractor="toy", scan=SCAN)
+    for k, pose in enumerate(WALK + EAST_WALK):
+        m.add_state(unit(k), pose, (), step=k, ranges=cast(HOUSE_1, pose))
+    memory = Memory({"h1-e000": m}, threshold=0.05)
+    offset = 100  # feature ids the stored model does not have: no match in the east room
+    states = [AbstractState(unit(offset + k), pose, (), cast(HOUSE_2, pose))
+              for k, pose in enumerate(EAST_WALK * 2)]
+    states += [AbstractState(unit(k), pose, (), cast(HOUSE_2, pose))
+               for k, pose in enumerate(WALK)]
+    for check, merged in ((False, True), (True, False)):
+        rel = Relocalizer(memory, RelocationConfig(merge_check=check, recent_scans=8))
+        assert run(rel, states) is not None
+        assert (rel.mergeable() is not None) is merged
+    assert rel.final["h1-e000"].reason in ("geometry", "conflict")
+    assert any(k.startswith("merge refused") for k in rel.decisions)
+
+
+def test_the_whole_episode_confirms_a_right_match_and_refines_it():
+    T_true = (2.0, -1.0, 0.7)
+    memory = Memory({"a-e000": stored_model()}, threshold=0.05)
+    rel = Relocalizer(memory)
+    assert run(rel, episode_states(ROOM_A, T_true)) is not None
+    r = rel.mergeable()
+    assert r is not None and rel.final["a-e000"].ok
+    assert math.dist(r.transform[:2], T_true[:2]) < 0.05
+
+
 @pytest.mark.parametrize("walls", [ROOM_A, ROOM_B])
 def test_cast_profiles_see_the_walls(walls):
     r = cast(walls, (2.5, 1.0, 0.0))

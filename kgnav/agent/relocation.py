@@ -61,6 +61,10 @@ class RelocationConfig:
     merge_support: float = 0.5  # at the episode's end, merge into the matched model only above
     bridge_interval: int = 5  # after relocating, look for other models every this many steps
     reverify_interval: int = 10  # after relocating, re-verify (and refine) this often (0: off)
+    unique: bool = True  # accept only an alignment no alternative start fits about as well
+    unique_margin: float = 0.05  # an alternative within this inlier share makes it ambiguous
+    merge_check: bool = True  # before merging, verify the whole episode's scans (and bridges')
+    merge_scans: int = 200  # at most this many of the episode's profiles, evenly spread
 
 
 @dataclass
@@ -174,9 +178,11 @@ class Relocalizer:
         self.bridges: dict[str, Verdict] = {}  # other models verified during the episode
         self.decisions: Counter = Counter()
         self._recent: deque = deque(maxlen=self.config.recent_scans)
+        self._all: list = []  # every profile of the episode, for the check before merging
         self._candidates: list[tuple[int, str, tuple]] = []
         self._failed: list[tuple[int, str, tuple]] = []  # recently refused hypotheses
         self._pairs: list[tuple] = []
+        self.final: dict[str, Verdict] = {}  # the whole-episode verdicts, once asked
         self._landmarks = (np.zeros((0, 2)), np.zeros(0, dtype=object))
         self._last_bridge = 0
 
@@ -186,6 +192,7 @@ class Relocalizer:
         Returns the relocation accepted at this step, if any."""
         if state.ranges is not None and scan is not None:
             self._recent.append((state.pose, np.asarray(state.ranges, np.float32), scan))
+            self._all.append(self._recent[-1])
         if self.relocation is not None:
             if (self.config.bridge_interval > 0
                     and step - self._last_bridge >= self.config.bridge_interval):
@@ -216,6 +223,12 @@ class Relocalizer:
             if not self._confirmed(step, m.model_id, v.transform):
                 self.decisions["awaiting confirmation"] += 1
                 continue
+            if self.config.geometry and self.config.unique:
+                alt = self.ambiguity(m.model_id, v)
+                if alt is not None:  # a corridor, a symmetric room, a repeated room
+                    self.decisions["ambiguous"] += 1
+                    self._failed.append((step, m.model_id, tuple(T)))
+                    continue
             if best is None or v.inliers > best[1].inliers:
                 best = (m, v)
             if not self.config.geometry:
@@ -270,14 +283,17 @@ class Relocalizer:
                 and se2.angle_diff(a[2], b[2]) <= math.radians(tol_th))
 
     # ------------------------------------------------------------------ verifying
-    def verify(self, model_id: str, T) -> Verdict:
+    def verify(self, model_id: str, T, scans=None) -> Verdict:
         """Judge the hypothesis "the episode frame maps into ``model_id``'s by ``T``" against
-        geometry (see the module docstring); ICP refines ``T`` on the way."""
+        geometry (see the module docstring); ICP refines ``T`` on the way. ``scans``: the
+        (pose, profile, geometry) triples to judge with (default: the latest
+        ``recent_scans``)."""
         c = self.config
         geo = self.memory.geometry(model_id)
-        if geo is None or not self._recent:
+        scans = self._recent if scans is None else scans
+        if geo is None or not scans:
             return Verdict(False, "few points", tuple(T))
-        ends, fans = self._episode_geometry()
+        ends, fans = self._episode_geometry(scans)
         if len(ends) == 0:
             return Verdict(False, "few points", tuple(T))
         T0 = T = tuple(float(v) for v in T)
@@ -315,9 +331,60 @@ class Relocalizer:
                 break
         return float(tx), float(ty), float(se2.wrap_angle(th))
 
-    def _episode_geometry(self):
+    def ambiguity(self, model_id: str, v: Verdict, scans=None) -> Verdict | None:
+        """An alignment elsewhere that fits the scans about as well as the verified ``v``
+        (inliers within ``unique_margin``, conflicts allowed), or None when ``v`` is unique.
+
+        Alignment is started from alternatives around ``v``'s transform: shifted 0.75 and
+        1.5 m in eight directions, and turned by a quarter, half and three quarters of a turn
+        about the scans' centre. A corridor (shifted along it), a symmetric room (turned) or a
+        repeated room next door lets one of them converge elsewhere and fit as well: the scans
+        then do not tell where the agent is, and the match must wait for more of them.
+        """
+        c = self.config
+        geo = self.memory.geometry(model_id)
+        scans = self._recent if scans is None else scans
+        if geo is None or geo.grad_x is None or not scans:
+            return None
+        ends, fans = self._episode_geometry(scans)
+        T = v.transform
+        centre = se2.apply_to_points(T, ends).mean(axis=0)
+        for alt in _alternatives(T, centre):
+            T1 = self._align(geo, ends, alt)
+            if self._agree(T1, T):
+                continue  # back to the verified alignment
+            w = self._judge(geo, ends, fans, T1)
+            if (w.points >= c.min_points and w.inliers >= v.inliers - c.unique_margin
+                    and w.conflicts <= c.max_conflicts):
+                return w
+        return None
+
+    def episode_verdicts(self) -> dict[str, Verdict]:
+        """Before merging: the standing relocation's model and every bridge, each judged
+        against the whole episode's range profiles (at most ``merge_scans`` of them, evenly
+        spread), including the ambiguity test. A match that looked right on the last few
+        metres of a corridor, or in one room of a look-alike pair, rarely survives the whole
+        episode's view of the place."""
+        c = self.config
+        out: dict[str, Verdict] = {}
+        r = self.relocation
+        if r is None or not c.geometry:
+            return out
+        scans = self._all
+        if len(scans) > c.merge_scans:
+            scans = [scans[i] for i in np.linspace(0, len(scans) - 1, c.merge_scans).astype(int)]
+        todo = [(r.model_id, r.transform)]
+        todo += [(mid, b.transform) for mid, b in sorted(self.bridges.items())]
+        for mid, T in todo:
+            v = self.verify(mid, T, scans)
+            if v.ok and c.unique and self.ambiguity(mid, v, scans) is not None:
+                v = Verdict(False, "ambiguous", v.transform, v.inliers, v.conflicts, v.points)
+            out[mid] = v
+        return out
+
+    def _episode_geometry(self, scans):
         ends, fans = [], []
-        for pose, r, scan in self._recent:
+        for pose, r, scan in scans:
             ends.append(scan.endpoints(pose, r))
             fans.append(scan.fan(pose, r, margin=0.35))
         return np.concatenate(ends) if ends else np.zeros((0, 2)), fans
@@ -410,10 +477,25 @@ class Relocalizer:
 
     def mergeable(self) -> Relocation | None:
         """The relocation to merge the episode with at its end, or None: one that stood but
-        that landmarks supported only weakly would misplace a whole episode for good."""
+        that landmarks supported only weakly, or that the whole episode's scans refute
+        (:meth:`episode_verdicts`, with ``merge_check``), would misplace a whole episode for
+        good. Bridges the whole episode refutes are dropped (:attr:`bridges`)."""
         r = self.relocation
         if r is None or self.refuted(r, self.config.merge_support):
             return None
+        if self.config.merge_check and self.config.geometry:
+            verdicts = self.final = self.episode_verdicts()
+            for mid in list(self.bridges):
+                if not verdicts[mid].ok:
+                    self.decisions["bridge refuted by episode"] += 1
+                    del self.bridges[mid]
+                else:
+                    self.bridges[mid] = verdicts[mid]
+            v = verdicts[r.model_id]
+            if not v.ok:
+                self.decisions[f"merge refused: {v.reason}"] += 1
+                return None
+            r.transform = v.transform  # aligned on the whole episode: the most precise
         return r
 
     def refine(self, state) -> None:
@@ -460,6 +542,19 @@ class Relocalizer:
             if v.ok:
                 self.bridges[m.model_id] = v
                 self.decisions["bridge"] += 1
+
+
+def _alternatives(T, centre):
+    """Starting transforms around ``T`` for the ambiguity test: ``T`` shifted (model frame)
+    by 0.75 and 1.5 m in eight directions, and turned about ``centre`` by 90, 180, 270°."""
+    for d in (0.75, 1.5):
+        for k in range(8):
+            a = k * math.pi / 4
+            yield se2.compose((d * math.cos(a), d * math.sin(a), 0.0), T)
+    cx, cy = float(centre[0]), float(centre[1])
+    for k in (1, 2, 3):
+        turn = se2.compose((cx, cy, k * math.pi / 2), (-cx, -cy, 0.0))
+        yield se2.compose(turn, T)
 
 
 def _spread(pts: np.ndarray) -> float:

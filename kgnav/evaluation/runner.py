@@ -333,6 +333,10 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
             _step, target_source, tx, ty, _oid = objects[-1]
             target_err = gt.target_error(tx, ty)
         record["stop_reason"] = agent.log_.stop_reason
+        # every object the agent headed for: when, why, and how far from a real goal
+        record["object_targets"] = [
+            [t[0], t[1], None if (e := gt.target_error(t[2], t[3])) is None else round(e, 2)]
+            for t in objects]
         record["memory_goal_step"] = next((t[0] for t in objects if t[1] == "memory"), None)
         record["target_source"] = target_source
         record["target_error"] = (None if target_err is None or math.isinf(target_err)
@@ -351,6 +355,12 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
         bridges = {}
         if reloc is not None:
             record["relocation"]["merged"] = into is not None
+            final = rel.final.get(reloc.model_id)
+            if final is not None:  # the whole episode's verdict before merging
+                record["relocation"]["final"] = {
+                    "reason": final.reason, "inliers": round(final.inliers, 3),
+                    "conflicts": round(final.conflicts, 3), "points": final.points,
+                    **_relocation_error(gt, reloc.model_id, final.transform, reloc.at)}
         if into is not None and rel.bridges:
             bridges = {mid: v.transform for mid, v in rel.bridges.items()}
             record["bridges"] = [
@@ -742,13 +752,20 @@ def summarize(records: Iterable[dict], seed: int = 0) -> dict[str, dict]:
             "relocation_step": _median([r["relocation"].get("step") for r in reloc]),
             **_later_relocation(recs),
             "wrong_merges": sum(1 for r in reloc if r["relocation"].get("merged") and (
-                not r["relocation"]["same_house"] or r["relocation"].get("error_m", 0) > 1.0
-                or abs(r["relocation"].get("error_deg", 0)) > 30)),
+                not r["relocation"]["same_house"] or _wrong(r["relocation"]))),
+            "wrong_bridges": sum(1 for r in reloc if r["relocation"].get("merged")
+                                 for b in r.get("bridges", ())
+                                 if _house_of(b["model"]) != r["scene"] or _wrong(b)),
             "failures": {c: sum(r["failure"] == c for r in recs) for c in FAILURE_CLASSES},
         }
     for name, diff in paired_differences(records, "ans", seed=seed).items():
         out[name]["vs_ans"] = diff
     return out
+
+
+def _wrong(fields: dict) -> bool:
+    """A frame transform more than 1 m or 30 degrees off the truth."""
+    return fields.get("error_m", 0) > 1.0 or abs(fields.get("error_deg", 0)) > 30
 
 
 def _later_relocation(recs: list[dict]) -> dict:
