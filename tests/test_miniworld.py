@@ -316,7 +316,14 @@ def test_benchmark_runs_ans_si_and_oracle(evaluated):
         if reloc and reloc["same_house"]:
             assert "error_m" in reloc and "error_deg" in reloc  # ground-truth errors
     assert isinstance(summary["si"]["wrong_merges"], int)
-    assert (out / "memory" / "si").is_dir()
+    from kgnav import AbstractModel
+
+    stored = sorted((out / "memory" / "si").glob("*.graphml"))
+    assert stored
+    for p in stored:  # built with opencv-gist at its calibrated threshold, and say so
+        m = AbstractModel.load(p)
+        assert m.classes == mwh.CLASSES and m.extractor == "opencv-gist"
+        assert m.relocation_threshold == 0.1006
 
 
 def test_benchmark_is_the_same_with_two_workers(evaluated, tmp_path):
