@@ -103,6 +103,11 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
 @click.option("--threshold", type=click.FloatRange(0.0, 2.0), default=None,
               help="Relocation cosine-distance threshold (default: the extractor's loop "
                    "one).")
+@click.option("--encoder-weights", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, metavar="FILE",
+              help="Weights of kgnav-encoder [default: the shipped ones], e.g. retrained on "
+                   "another environment's frames (train-encoder --env); its models are named "
+                   "kgnav-encoder:<fingerprint> and never mix with the shipped encoder's.")
 @click.option("--pre-explore-steps", type=click.IntRange(min=10), default=1500,
               show_default=True, help="Budget of the hp/sp pre-exploration per house.")
 @click.option("--show", callback=_show, default=None, metavar="SCENE:EPISODE",
@@ -123,8 +128,8 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, workers, engine,
-             address, segmenter, extractor, threshold, pre_explore_steps, show, noise, preset,
-             policy, seed, quiet) -> None:
+             address, segmenter, extractor, threshold, encoder_weights, pre_explore_steps, show,
+             noise, preset, policy, seed, quiet) -> None:
     """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
     from kgnav.agent.loop import PRESETS
     from kgnav.agent.policy import make_policy, policy_names
@@ -143,6 +148,13 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
             raise click.BadParameter(f"unknown policy {policy!r} (known: "
                                      f"{', '.join(policy_names())})", param_hint="--policy")
         make_policy(policy)  # a weight file that does not load fails here, in one line
+    if encoder_weights is not None:
+        if extractor not in ("auto", "kgnav-encoder"):
+            raise click.BadParameter(f"weights of kgnav-encoder, but --extractor is "
+                                     f"{extractor!r}", param_hint="--encoder-weights")
+        from kgnav.encoder.weights import load_weights
+
+        load_weights(encoder_weights)  # one line, exit 1, when the file does not load
     from kgnav.evaluation.runner import EvalConfig, run_eval
 
     cfg = EvalConfig(split=split, scenes_dir=None if scenes_dir is None else str(scenes_dir),
@@ -153,7 +165,8 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
                      show=show, actuation_noise=noise[0], odometry_noise=noise[1],
                      agent=PRESETS[preset](), forget_below=0.2 if preset == "default" else 0.0,
                      forget_label_share=0.5 if preset == "default" else 0.0,
-                     preset=preset, policy=policy, env=env_name)
+                     preset=preset, policy=policy, env=env_name,
+                     encoder_weights=None if encoder_weights is None else str(encoder_weights))
     if show is None:  # the first house's last episode
         cfg = replace(cfg, show=(0, cfg.suite.episode_count(0, episodes) - 1))
     _records, summary = run_eval(cfg, out_dir, progress=not quiet)

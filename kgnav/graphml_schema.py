@@ -43,7 +43,7 @@ INT64 = (-(2**63), 2**63 - 1)
 
 #: Schema versions this release reads. Version-1 files are accepted as they are; when a version
 #: adds attributes, :func:`upgrade` is where an older file's model gets them.
-READABLE_VERSIONS = (1, 2)
+READABLE_VERSIONS = (1, 2, 3)
 
 
 # ---------------------------------------------------------------------------------------- codecs
@@ -330,6 +330,9 @@ ATTRIBUTES: tuple[Attr, ...] = (
     Attr("object", "score", Double(0.0, MAX_COORD), since=2),
     Attr("sees", "radius", Double(0.0, MAX_COORD, " m"), since=2),
     Attr("sees", "score", Double(0.0, 1.0), since=2),
+    # version 3: the relocation threshold (cosine distance) the model's states are matched at;
+    # absent when none was recorded (a model built without a memory, or read from an older file)
+    Attr("graph", "relocation_threshold", Double(0.0, 2.0), required=False, since=3),
 )
 
 DOMAIN = {
@@ -374,7 +377,8 @@ def upgrade(g: nx.MultiDiGraph, version: int) -> None:
     """Bring a model read from an older schema version up to :data:`SCHEMA_VERSION` in place.
 
     Version 1 files have no range profiles (``scan`` is empty), point-like objects (radius 0)
-    and views of full confidence (score 1, an object's score its number of views).
+    and views of full confidence (score 1, an object's score its number of views). Files
+    before version 3 recorded no relocation threshold: it stays absent (unknown), never guessed.
     """
     if version < 2:
         g.graph["scan"] = ""

@@ -84,8 +84,8 @@ def merge(
 
     Give either ``anchor=(target_state, source_state)`` or an explicit ``transform``; with
     neither, the source is assumed to be in the target frame already. The inputs are not modified.
-    The result keeps the target's id, frame, tolerances and vocabulary (extended by any class only
-    the source knows).
+    The result keeps the target's id, frame, tolerances, relocation threshold (the source's when
+    the target records none) and vocabulary (extended by any class only the source knows).
     """
     _check_compatible(target, source)
     if anchor is not None and transform is not None:
@@ -100,6 +100,8 @@ def merge(
     src = source.copy().transform(T)
     if out.scan is None and src.scan is not None and not _has_ranges(out):
         out.graph.graph["scan"] = src.graph.graph["scan"]
+    if out.relocation_threshold is None:  # the target's stands; else the source's is all we know
+        out.relocation_threshold = src.relocation_threshold
     keep_ranges = src.scan is not None and src.scan == out.scan  # else another camera's
     extra = [c for c in src.classes if c not in out.classes]
     if extra:

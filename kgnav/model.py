@@ -20,7 +20,8 @@ sees edge      state → object, key=sees  ``kind="sees"``, ``bbox`` (u0, v0, u1
 graph          —                         ``kgnav_schema``, ``model_id``, ``feature_dim``,
                                          ``extractor``, ``classes``, ``episodes``,
                                          ``merged_from``, ``scan`` (range profile geometry,
-                                         JSON, or empty), tolerances
+                                         JSON, or empty), tolerances; optional
+                                         ``relocation_threshold``
 ============== ========================= ====================================================
 
 ``origin`` is provenance: the space-separated ``"<model_id>/<node_id>"`` of every recorded node
@@ -55,7 +56,7 @@ from kgnav.classes import OBJECT_CLASSES
 from kgnav.errors import FeatureDimError, UnknownClassError, UnknownStateError
 from kgnav.geometry import ScanGeometry
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 #: The paper's action set; transitions are keyed by these names.
 ACTIONS: tuple[str, ...] = ("stop", "move_forward", "turn_left", "turn_right")
@@ -135,6 +136,10 @@ class AbstractModel:
         Object-class vocabulary; a detection of another class raises :class:`UnknownClassError`.
     extractor:
         Name of the feature extractor, recorded so models from different extractors are not mixed.
+    relocation_threshold:
+        The cosine distance below which states are matched for relocation, recorded with the
+        extractor: a threshold belongs to one extractor on one visual domain (None: not
+        recorded).
     pose_tol, angle_tol, feature_tol:
         A new state is "already present" when a state lies within ``pose_tol`` metres and
         ``angle_tol`` radians and its features are within cosine distance ``feature_tol``.
@@ -155,6 +160,7 @@ class AbstractModel:
         model_id: str | None = None,
         classes: Sequence[str] = OBJECT_CLASSES,
         extractor: str = "unspecified",
+        relocation_threshold: float | None = None,
         pose_tol: float = 0.05,
         angle_tol: float = math.radians(2.0),
         feature_tol: float = 1e-3,
@@ -190,6 +196,7 @@ class AbstractModel:
             object_radius=float(object_radius),
             scan=scan.to_json() if scan is not None else "",
         )
+        self.relocation_threshold = relocation_threshold
         self._init_counters()
 
     # ------------------------------------------------------------------ properties
@@ -214,6 +221,22 @@ class AbstractModel:
     @property
     def extractor(self) -> str:
         return self.graph.graph["extractor"]
+
+    @property
+    def relocation_threshold(self) -> float | None:
+        """The relocation threshold the model was built with (None: not recorded)."""
+        t = self.graph.graph.get("relocation_threshold")
+        return None if t is None else float(t)
+
+    @relocation_threshold.setter
+    def relocation_threshold(self, value: float | None) -> None:
+        if value is None:
+            self.graph.graph.pop("relocation_threshold", None)
+            return
+        if not 0.0 < float(value) <= 2.0:
+            raise ValueError(f"relocation_threshold must be a cosine distance in (0, 2], "
+                             f"got {value!r}")
+        self.graph.graph["relocation_threshold"] = float(value)
 
     @property
     def scan(self) -> ScanGeometry | None:

@@ -146,6 +146,7 @@ def summary(model: AbstractModel) -> dict:
         "schema_version": model.graph.graph["kgnav_schema"],
         "feature_dim": model.feature_dim,
         "extractor": model.extractor,
+        "relocation_threshold": model.relocation_threshold,
         "states": model.n_states,
         "objects": model.n_objects,
         "transitions": model.n_transitions,

@@ -350,6 +350,8 @@ def test_runner_runs_a_registered_environment(tmp_path):
     assert stored
     m = AbstractModel.load(stored[0])
     assert m.classes == CLASSES
+    # built with opencv-gist's calibrated threshold, and recorded with it
+    assert m.extractor == "opencv-gist" and m.relocation_threshold == 0.1006
 
 
 def test_runner_reports_the_ground_truth_an_environment_offers():

@@ -227,23 +227,25 @@ def test_geometry_and_evidence_survive_save_and_load(tmp_path, m):
     assert object_evidence(back) == object_evidence(m)
 
 
-def test_a_version_1_file_still_loads_and_saves_as_version_2(tmp_path):
+def test_a_version_1_file_still_loads_and_saves_as_the_current_version(tmp_path):
     """A model written before range profiles and evidence (schema 1) loads with point-like
-    objects, full-confidence views and no scan, and is written back as version 2."""
+    objects, full-confidence views, no scan and no relocation threshold, and is written back
+    as the current version (3)."""
     from pathlib import Path
 
     v1 = Path(__file__).parent / "data" / "graphml" / "valid.graphml"
     assert '<data key="g0">1</data>' in v1.read_text()
     m = AbstractModel.load(v1)
-    assert m.graph.graph["kgnav_schema"] == 2 and m.scan is None
+    assert m.graph.graph["kgnav_schema"] == 3 and m.scan is None
+    assert m.relocation_threshold is None
     for o in m.objects():
         d = m.graph.nodes[o]
         assert d["radius"] == 0.0 and d["score"] == float(d["n_views"])
     assert all(m.ranges(s) is None for s in m.states())
     assert {o: e.n_missed for o, e in object_evidence(m).items()} == {"o0": 0, "o1": 0}
-    m.save(tmp_path / "v2.graphml")
-    again = AbstractModel.load(tmp_path / "v2.graphml")
-    assert again == m and '<data key="g0">2</data>' in (tmp_path / "v2.graphml").read_text()
+    m.save(tmp_path / "v3.graphml")
+    again = AbstractModel.load(tmp_path / "v3.graphml")
+    assert again == m and '<data key="g0">3</data>' in (tmp_path / "v3.graphml").read_text()
 
 
 def test_occupancy_never_misplaces_edge_hits_and_survives_foreign_ranges():

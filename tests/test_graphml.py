@@ -1,4 +1,5 @@
 import os
+import re
 
 import networkx as nx
 import numpy as np
@@ -44,7 +45,40 @@ def test_networkx_reads_the_file(tmp_path, tiny):
     g = nx.read_graphml(path, force_multigraph=True)
     assert set(g.nodes) == set(tiny.graph.nodes)
     assert set(g.edges(keys=True)) == set(tiny.graph.edges(keys=True))
-    assert g.graph["kgnav_schema"] == 2
+    assert g.graph["kgnav_schema"] == 3
+
+
+def test_relocation_threshold_is_recorded_and_checked(tmp_path, tiny):
+    """Schema 3 records the relocation threshold a model was built with; older files load
+    without one (unknown, not guessed) and save as version 3; a value outside (0, 2] is
+    refused by the API and in a file."""
+    path = tmp_path / "t.graphml"
+    assert tiny.relocation_threshold is None
+    tiny.save(path)
+    assert "relocation_threshold" not in path.read_text().split("<graph ")[1]  # only the key
+    tiny.relocation_threshold = 0.0123
+    tiny.save(path)
+    back = AbstractModel.load(path)
+    assert back.relocation_threshold == 0.0123 and back == tiny
+    kid = re.search(r'<key id="(g[0-9]+)" for="graph" attr.name="relocation_threshold" '
+                    r'attr.type="double" />', path.read_text()).group(1)
+    text = path.read_text()
+    path.write_text(text.replace(f'<data key="{kid}">0.0123</data>',
+                                 f'<data key="{kid}">2.5</data>'))
+    with pytest.raises(ModelFileError, match="attribute 'relocation_threshold': 2.5 is outside"):
+        AbstractModel.load(path)
+    # a version-2 file: the attribute did not exist then
+    v2 = text.replace('<data key="g0">3</data>', '<data key="g0">2</data>')
+    path.write_text(v2)
+    with pytest.raises(ModelFileError, match="'relocation_threshold' is not a graph attribute"):
+        AbstractModel.load(path)
+    path.write_text(v2.replace(f'<data key="{kid}">0.0123</data>', ""))
+    old = AbstractModel.load(path)
+    assert old.relocation_threshold is None and old.graph.graph["kgnav_schema"] == 3
+    with pytest.raises(ValueError, match=r"relocation_threshold must be a cosine distance"):
+        AbstractModel(feature_dim=2, relocation_threshold=0.0)
+    with pytest.raises(ValueError, match=r"relocation_threshold must be a cosine distance"):
+        tiny.relocation_threshold = float("nan")
 
 
 def test_failed_save_keeps_previous_file(tmp_path, tiny, monkeypatch):

@@ -162,3 +162,15 @@ def test_merge_with_true_transform_reassociates_objects(world):
     seen = {(o.cls, round(o.position[0], 1)) for o in map(m.object_info, m.objects())}
     assert m.n_objects <= len(world.objects)
     assert m.n_objects < a.n_objects + b.n_objects or not seen
+
+
+def test_merge_keeps_the_target_s_relocation_threshold():
+    f = np.eye(4, dtype=np.float32)
+    a = AbstractModel(4, model_id="a", relocation_threshold=0.1)
+    b = AbstractModel(4, model_id="b", relocation_threshold=0.2)
+    c = AbstractModel(4, model_id="c")
+    for m in (a, b, c):
+        m.add_state(f[0], (0.0, 0.0, 0.0))
+    assert merge(a, b).relocation_threshold == 0.1
+    assert merge(c, b).relocation_threshold == 0.2  # the target records none: the source's
+    assert merge(c, c).relocation_threshold is None

@@ -217,7 +217,9 @@ class ObjectNavAgent:
         self.map_: EpisodeMap = self.map_builder.reset()
         self.model_ = AbstractModel(self.extractor.dim, model_id=model_id,
                                     extractor=self.extractor.name, scan=self.state_creator.scan,
-                                    classes=self.classes)
+                                    classes=self.classes,
+                                    relocation_threshold=(self.memory.threshold
+                                                          if self.memory is not None else None))
         self.current_: AbstractModel = self.model_  # the merged model after a relocation
         self._scans = ScanTable(self.model_)  # range profiles of current_'s states
         self._evidence: dict = {}  # goal candidates' evidence, recounted every few states

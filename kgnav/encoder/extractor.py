@@ -22,7 +22,7 @@ import torch
 
 from kgnav.agent.features import register_extractor
 from kgnav.encoder.net import ConvEncoder, downscale, preprocess, to_tensor
-from kgnav.encoder.weights import EncoderWeights, load_weights
+from kgnav.encoder.weights import EncoderWeights, load_weights, shipped_fingerprint
 
 NAME = "kgnav-encoder"
 # The agent's relocation threshold for the shipped weights: precision 0.973, recall 0.45 per view
@@ -55,10 +55,12 @@ class LearnedEncoder:
     device:
         ``"auto"`` (GPU when present), ``"cpu"`` or ``"cuda"``.
 
-    Attributes: ``name``, ``dim``, ``threshold`` (the calibrated cosine-distance below which two
-    states match, from the weight file), ``loop_threshold`` (the looser one the agent relocates
-    with: the weight file's ``loop_threshold`` metadata, else :data:`LOOP_THRESHOLD`), ``meta``
-    (the weight file's metadata).
+    Attributes: ``name`` (``kgnav-encoder`` for the shipped weights, else
+    ``kgnav-encoder:<fingerprint>``, see :meth:`EncoderWeights.fingerprint`), ``dim``,
+    ``threshold`` (the calibrated cosine-distance below which two states match, from the weight
+    file), ``loop_threshold`` (the one the agent relocates with: the weight file's
+    ``loop_threshold`` metadata, else :data:`LOOP_THRESHOLD` for the shipped weights and
+    ``threshold`` for others), ``meta`` (the weight file's metadata).
     """
 
     name = NAME
@@ -69,7 +71,14 @@ class LearnedEncoder:
         self.arch = w.arch
         self.dim = w.arch.dim
         self.threshold = w.threshold
-        self.loop_threshold = float(w.meta.get("loop_threshold", LOOP_THRESHOLD))
+        shipped = weights is None or w.fingerprint() == shipped_fingerprint()
+        # other weights give other features: models built with them must never mix with the
+        # shipped encoder's (merging and relocation refuse another extractor name)
+        self.name = NAME if shipped else f"{NAME}:{w.fingerprint()}"
+        # LOOP_THRESHOLD was chosen for the shipped weights; others relocate at their own
+        # calibrated threshold unless their file names a loop threshold
+        self.loop_threshold = float(w.meta.get("loop_threshold",
+                                               LOOP_THRESHOLD if shipped else self.threshold))
         self.meta = w.meta
         self.device = resolve_device(device)
         net = ConvEncoder(w.arch, batchnorm=False)

@@ -108,6 +108,10 @@ def build_pairs(sampler: ViewSampler, extractors: Sequence, n_pos: int = 1000, s
         c = c or sampler.pose_near(h, a, rng, dist=(0.0, POS_DIST),
                                    turn=(NEG_TURN + 0.05, math.pi))
         c = c or sampler.pose_near(h, a, rng, dist=(0.0, 0.0), turn=(NEG_TURN + 0.05, math.pi))
+        # views walked through an environment may have no turned view at that spot: a view
+        # farther off; failing that A itself, whose near-miss pair is then dropped below
+        c = c or sampler.pose_near(h, a, rng, dist=(NEG_DIST + 0.05, 4 * NEG_DIST),
+                                   turn=(0.0, math.pi)) or a
         poses += [a, b, c]
     v_houses = np.repeat(houses, 3)
     v_poses = np.array(poses, float)

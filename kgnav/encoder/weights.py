@@ -18,6 +18,7 @@ file and the reason.
 from __future__ import annotations
 
 import os
+from functools import cache
 from pathlib import Path
 from typing import ClassVar
 
@@ -46,6 +47,20 @@ class EncoderWeights(NetWeights):
     def threshold(self) -> float:
         return float(self.meta.get("threshold", PAPER_THRESHOLD))
 
+    def fingerprint(self) -> str:
+        """12 hex digits of SHA-256 over the architecture and the parameters (not the
+        metadata: recalibrating a threshold keeps the features, and so the fingerprint)."""
+        import hashlib
+        import json
+
+        import numpy as np
+
+        h = hashlib.sha256(json.dumps(self.arch.to_dict(), sort_keys=True).encode())
+        for k in sorted(self.params):
+            h.update(k.encode())
+            h.update(np.ascontiguousarray(self.params[k], np.float32).tobytes())
+        return h.hexdigest()[:12]
+
 
 def expected_shapes(arch: Arch | dict) -> dict[str, tuple[int, ...]]:
     """Parameter name → shape of the inference network of ``arch`` (an :class:`Arch` or its
@@ -67,6 +82,12 @@ def load_weights(path: str | os.PathLike[str] | None = None) -> EncoderWeights:
     if not isinstance(thr, int | float) or not 0 < thr <= 2:
         raise EncoderWeightsError(path, f"threshold {thr!r} is not a cosine distance in (0, 2]")
     return EncoderWeights(Arch.from_dict(meta["arch"]), params, meta)
+
+
+@cache
+def shipped_fingerprint() -> str:
+    """The fingerprint of the shipped weights."""
+    return load_weights().fingerprint()
 
 
 def set_threshold(path: str | os.PathLike[str], threshold: float, source: str) -> None:

@@ -5,7 +5,9 @@
 * :mod:`kgnav.envs.protocol`: the observations and the optional ground truth
   (:class:`NavEnv`, :func:`check_observation`);
 * :mod:`kgnav.envs.registry`: environments by name (:func:`register_env`, :func:`make_env`);
-  kgnav's own simulator is ``kgnav``.
+  kgnav's own simulator is ``kgnav``;
+* :mod:`kgnav.envs.miniworld`: MiniWorld houses as ``miniworld`` (``kgnav[miniworld]``, an
+  entry point; MiniWorld itself is imported only when a scene renders).
 """
 
 from kgnav.envs.protocol import (

@@ -108,6 +108,7 @@ class EvalConfig:
     engine: str = "local"
     address: str | None = None
     env: str = DEFAULT_ENV
+    encoder_weights: str | None = None  # kgnav-encoder's weight file (None: the shipped one)
 
     def __post_init__(self):
         find_env(self.env)  # a one-line error for an unknown or broken one
@@ -119,6 +120,9 @@ class EvalConfig:
             if v not in VARIANTS:
                 raise KgnavError(f"unknown variant {v!r} (known: {', '.join(VARIANTS)})")
         check_settings(self.engine, self.workers, self.address)
+        if self.encoder_weights is not None and self.extractor not in ("auto", ENCODER):
+            raise KgnavError(f"encoder weights are for extractor {ENCODER!r}, not "
+                             f"{self.extractor!r}")
 
     @property
     def env_options(self) -> EnvOptions:
@@ -148,13 +152,19 @@ class EvalConfig:
 EXECUTION = ("workers", "engine", "address")
 
 
-def resolve_extractor(name: str) -> str:
-    """``auto`` → the shipped learned encoder when it loads, else the OpenCV descriptor."""
+ENCODER = "kgnav-encoder"
+
+
+def resolve_extractor(name: str, weights: str | None = None) -> str:
+    """``auto`` → the learned encoder when it loads (``weights``: its weight file; None: the
+    shipped one), else the OpenCV descriptor. With ``weights`` the encoder must load."""
     if name != "auto":
         return name
+    if weights is not None:
+        return ENCODER
     try:
-        make_extractor("kgnav-encoder")
-        return "kgnav-encoder"
+        make_extractor(ENCODER)
+        return ENCODER
     except KgnavError:
         return "opencv-gist"
 
@@ -190,10 +200,12 @@ def scene_name(env: NavEnv, cfg: EvalConfig, scene: int) -> str:
     return re.sub(r"[^A-Za-z0-9_.+-]", "_", str(name))[:100]
 
 
-def _extractor(name: str):
-    key = ("extractor", name)
+def _extractor(name: str, weights: str | None = None):
+    """The extractor ``name`` (kgnav-encoder with ``weights`` when given), once per process."""
+    key = ("extractor", name, weights)
     if key not in _CACHE:
-        _CACHE[key] = make_extractor(name)
+        _CACHE[key] = (make_extractor(name, weights=weights)
+                       if weights is not None and name == ENCODER else make_extractor(name))
     return _CACHE[key]
 
 
@@ -218,7 +230,8 @@ def _make_agent(cfg: EvalConfig, variant: Variant, env: NavEnv, memory: Memory |
     if variant.policy == "semantic":
         policy.cooccurrence_ = _ROUND.get("cooccurrence", {})
     config = replace(cfg.agent, strategy=variant.strategy)
-    return ObjectNavAgent.for_env(spec, _segmenter(cfg, spec), _extractor(extractor_name),
+    return ObjectNavAgent.for_env(spec, _segmenter(cfg, spec),
+                                  _extractor(extractor_name, cfg.encoder_weights),
                                   policy=policy, memory=memory, config=config)
 
 
@@ -575,14 +588,17 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
     store_dir = out / "memory" / variant.name if (out is not None and variant.learns) else None
     models: dict[str, AbstractModel] = {}
     seen: dict[str, set[int]] = {}  # per house, the real instances its episodes saw
+    threshold = (_threshold(cfg, _extractor(extractor_name, cfg.encoder_weights))
+                 if variant.memory else None)
     if variant.memory == "pre":
         models, seen = _pre_explored(cfg, extractor_name, out, progress, engine)
+        for m in models.values():  # matched at this run's threshold
+            m.relocation_threshold = threshold
     if store_dir is not None:
         _clear_store(store_dir)
     store = ModelStore(store_dir) if store_dir is not None else None
     bar = _bar(sum(counts.values()), variant.name, progress)
     records: list[dict] = []
-    threshold = _threshold(cfg, _extractor(extractor_name)) if variant.memory else None
     step = 1 if variant.learns else _rounds_per_call(engine, len(scenes))
     try:
         for r0 in range(0, rounds, step):
@@ -665,7 +681,8 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
     """The hp/sp memory: one pre-explored model per house, built once per output directory."""
     params = {"split": cfg.source_name, "scenes": cfg.scene_indices, "seed": cfg.seed,
               "forget": [cfg.forget_below, cfg.forget_label_share], "agent": asdict(cfg.agent),
-              "steps": cfg.pre_explore_steps, "extractor": extractor_name,
+              "steps": cfg.pre_explore_steps,
+              "extractor": _extractor(extractor_name, cfg.encoder_weights).name,
               "segmenter": cfg.segmenter, "size": [cfg.width, cfg.height]}
     if cfg.env != DEFAULT_ENV:  # (kgnav's keys stay as they were: stored memories stay valid)
         params["env"] = cfg.env
@@ -793,7 +810,8 @@ def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = Tr
     """Run every variant of ``cfg``; with ``out``, write ``episodes.jsonl`` (one line per
     episode, rounds in order), ``summary.json`` (per variant) and ``config.json``.
     Returns (records, summary)."""
-    extractor_name = resolve_extractor(cfg.extractor)
+    extractor_name = resolve_extractor(cfg.extractor, cfg.encoder_weights)
+    features = _extractor(extractor_name, cfg.encoder_weights).name  # weights' fingerprint
     out_dir = Path(out) if out is not None else None
     engine = make_engine(cfg.engine, cfg.workers, cfg.address, _worker_init)
     part = None
@@ -838,8 +856,8 @@ def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = Tr
             json.dump(summary, f, indent=2, sort_keys=True)
         with atomic_open(out_dir / "config.json", "w") as f:
             settings = {k: v for k, v in asdict(cfg).items() if k not in EXECUTION}
-            json.dump({**settings, "extractor": extractor_name, "execution": execution}, f,
-                      indent=2, sort_keys=True)
+            json.dump({**settings, "extractor": extractor_name, "features": features,
+                       "execution": execution}, f, indent=2, sort_keys=True)
         write_plots(records, summary, cfg, out_dir)
     return records, summary
 

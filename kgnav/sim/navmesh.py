@@ -31,7 +31,9 @@ class NavMap:
     """Navigable grid of a scene plus cached geodesic distance fields.
 
     ``grid`` bool (H, W); ``resolution`` metres per cell; ``origin`` world (x, y) of the grid's
-    corner (0, 0). ``obstacles`` marks walls and object footprints (not inflated).
+    corner (0, 0). ``obstacles`` marks walls and object footprints (not inflated). ``scene``
+    needs only ``objects`` (with ``id``, ``x0, y0, x1, y1`` and ``distance_to(x, y)``) and
+    ``objects_of(cls)``; ``classes`` is the vocabulary goal classes are checked against.
     """
 
     scene: Scene
@@ -40,6 +42,7 @@ class NavMap:
     resolution: float = GRID_RES
     origin: tuple[float, float] = (0.0, 0.0)
     agent_radius: float = AGENT_RADIUS
+    classes: tuple[str, ...] = OBJECT_CLASSES
     _fields: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -54,6 +57,18 @@ class NavMap:
             rasterize_box(occ, w.x0, w.y0, w.x1, w.y1, True)
         for o in scene.objects:
             rasterize_box(occ, o.x0, o.y0, o.x1, o.y1, True)
+        nav = cls.from_occupancy(scene, occ, agent_radius)
+        scene._cache[key] = nav
+        return nav
+
+    @classmethod
+    def from_occupancy(cls, scene, occupied: np.ndarray, agent_radius: float = AGENT_RADIUS,
+                       classes: tuple[str, ...] = OBJECT_CLASSES) -> NavMap:
+        """The navigable map of any floor plan: ``occupied`` (bool, rows = y, at
+        :data:`GRID_RES` from the origin) marks walls, object footprints and the outside.
+        A cell is navigable when the agent's disc there touches no occupied cell and it lies in
+        the largest connected free region."""
+        occ = np.asarray(occupied, bool)
         # distance (cells) from each free cell centre to the nearest obstacle cell
         dist = cv2.distanceTransform((~occ).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
         # an obstacle cell's edge is half a cell nearer than its centre
@@ -63,9 +78,7 @@ class NavMap:
             counts = np.bincount(lab.ravel())
             counts[0] = 0
             free = lab == int(np.argmax(counts))
-        nav = cls(scene, free, occ, agent_radius=agent_radius)
-        scene._cache[key] = nav
-        return nav
+        return cls(scene, free, occ, agent_radius=agent_radius, classes=tuple(classes))
 
     # ------------------------------------------------------------------ coordinates
     def to_cell(self, x: float, y: float) -> tuple[int, int]:
@@ -114,10 +127,10 @@ class NavMap:
         Fast Marching from the region (distance 0 inside it) through navigable cells; cells
         that are not navigable or cannot reach the region hold ``inf``. Cached per class.
         """
-        if cls not in OBJECT_CLASSES:
+        if cls not in self.classes:
             from kgnav.errors import UnknownClassError
 
-            raise UnknownClassError(cls, OBJECT_CLASSES)
+            raise UnknownClassError(cls, self.classes)
         key = ("field", cls)
         if key not in self._fields:
             self._fields[key] = self._fmm(self.goal_region(cls))
