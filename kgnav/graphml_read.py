@@ -711,7 +711,7 @@ class _Bulk:
                                     2 if kind == "sees" else 3)
         fields = self.fields[kind]
         n_groups = sum(f.groups for f in fields)
-        cols = list(zip(*lines, strict=True))[first : first + n_groups]
+        cols = list(zip(*lines, strict=False))[first : first + n_groups]
         names, columns, at = ["kind"], [[kind] * len(lines)], 0
         optional = []
         for f in fields:
@@ -721,7 +721,7 @@ class _Bulk:
                 optional.append(f.name)
             names.append(f.name)
             columns.append(column)
-        out = [dict(zip(names, row, strict=True)) for row in zip(*columns, strict=True)]
+        out = [dict(zip(names, row, strict=False)) for row in zip(*columns, strict=False)]
         for name in optional:  # absent: not in the dict (the builder would not have it either)
             for d in out:
                 if d[name] is None:

@@ -22,6 +22,7 @@ ValueError: not a finite number (nan)
 from __future__ import annotations
 
 import binascii
+import itertools
 import json
 import math
 import re
@@ -110,6 +111,10 @@ class Long:
     def format(self, v) -> str:
         return str(int(v))
 
+    def format_many(self, values) -> list[str]:
+        """:meth:`format` of each value (one call for a whole column of a save)."""
+        return list(map(str, map(int, values)))
+
 
 @dataclass(frozen=True)
 class Double:
@@ -134,6 +139,9 @@ class Double:
 
     def format(self, v) -> str:
         return repr(float(v))
+
+    def format_many(self, values) -> list[str]:
+        return list(map(repr, map(float, values)))
 
 
 @dataclass(frozen=True)
@@ -169,6 +177,13 @@ class Numbers:
             raise ValueError(f"{len(v)} numbers, expected {self.n}")
         return self._template % tuple(map(float, v))
 
+    def format_many(self, values) -> list[str]:
+        values = list(values)
+        if any(len(v) != self.n for v in values):
+            raise ValueError(f"not {self.n} numbers")
+        texts = map(repr, map(float, itertools.chain.from_iterable(values)))
+        return list(map(" ".join, zip(*[texts] * self.n, strict=True)))
+
 
 class _String:
     """A codec whose value is held as its text."""
@@ -177,6 +192,9 @@ class _String:
 
     def format(self, v) -> str:
         return xml_text(str(v))
+
+    def format_many(self, values) -> list[str]:
+        return list(map(xml_text, map(str, values)))
 
 
 @dataclass(frozen=True)
@@ -242,6 +260,9 @@ class Features:
     def format(self, v) -> str:
         return encode_features(v)
 
+    def format_many(self, values) -> list[str]:
+        return list(map(encode_features, values))
+
 
 @dataclass(frozen=True)
 class ScanText(_String):
@@ -275,6 +296,9 @@ class Ranges:
 
     def format(self, v) -> str:
         return b64encode(np.ascontiguousarray(v, dtype=_F16).tobytes())
+
+    def format_many(self, values) -> list[str]:
+        return list(map(self.format, values))
 
 
 # ---------------------------------------------------------------------------------------- schema
