@@ -129,10 +129,13 @@ class _Writer:
         for n, d in self.g.nodes(data=True):
             if not d.keys() <= known_node:
                 scan("node", f"node {n!r}", d)
-        for batch in _edge_batches(self.g, 4096):
-            for u, v, k, d in batch:
-                if not d.keys() <= known_edge:
-                    scan("edge", f"edge {u!r}->{v!r} ({k!r})", d)
+        succ = self.g._succ
+        if any(not d.keys() <= known_edge
+               for nbrs in succ.values() for keydict in nbrs.values() for d in keydict.values()):
+            for batch in _edge_batches(self.g, 4096):
+                for u, v, k, d in batch:
+                    if not d.keys() <= known_edge:
+                        scan("edge", f"edge {u!r}->{v!r} ({k!r})", d)
         out = {}
         for (domain, name), found in types.items():
             if found <= {"long", "double"}:
@@ -226,15 +229,14 @@ class _Writer:
             self._column_cache[key] = (names, codecs, template)
         return self._column_cache[key]
 
-    def _batches(self, items: list, kind_of, label_of) -> list[str]:
-        """The <data> texts of ``items`` (in order), each kind formatted in columns."""
-        by_kind: dict[str, list[int]] = {}
-        for i, item in enumerate(items):
-            by_kind.setdefault(kind_of(item), []).append(i)
-        out: list[str] = [""] * len(items)
-        for where, idx in by_kind.items():
-            texts = self._many(where, [items[i][-1] for i in idx],
-                               lambda j, idx=idx: label_of(items[idx[j]]))
+    def _batches(self, kinds: list[str], ds: list[dict], label_of) -> list[str]:
+        """The <data> texts of elements ``ds`` of kinds ``kinds`` (in order), each kind
+        formatted in columns; ``label_of(i)`` names element ``i``."""
+        out: list[str] = [""] * len(ds)
+        for where in set(kinds):
+            idx = [i for i, kind in enumerate(kinds) if kind == where]
+            texts = self._many(where, [ds[i] for i in idx],
+                               lambda j, idx=idx: label_of(idx[j]))
             for i, text in zip(idx, texts, strict=True):
                 out[i] = text
         return out
@@ -266,38 +268,46 @@ class _Writer:
         dim = self.g.graph.get("feature_dim")
         per_node = 6 * dim + 400 if isinstance(dim, int) and dim > 0 else 400
         step = max(1, min(1024, (4 << 20) // per_node))
+        node_line = f'<node id=%s><data key="{kind_key}">%s</data>%s</node>\n'.__mod__
         for start in range(0, len(nodes), step):
-            batch = nodes[start : start + step]
-            texts = self._batches(batch, lambda item: item[1]["kind"],
-                                  lambda item: repr(item[0]))
-            yield "".join([
-                f'<node id={quoted[n]}><data key="{kind_key}">{d["kind"]}</data>{text}</node>\n'
-                for (n, d), text in zip(batch, texts, strict=True)
-            ])
-        quoted_keys: dict[str, str] = {}
+            ns, ds = zip(*nodes[start : start + step], strict=True)
+            kinds = [d["kind"] for d in ds]
+            texts = self._batches(kinds, ds, lambda i, ns=ns: repr(ns[i]))
+            yield "".join(map(node_line, zip(map(quoted.__getitem__, ns), kinds, texts,
+                                             strict=True)))
+        quoted_keys = _Quoted()
+        edge_line = "<edge id=%s source=%s target=%s>%s</edge>\n".__mod__
         for batch in _edge_batches(self.g, 4096):
-            texts = self._batches(batch, lambda e: "sees" if e[2] == SEES else "transition",
-                                  lambda e: f"{e[0]!r}->{e[1]!r}")
-            pieces = []
-            for (u, v, k, _d), text in zip(batch, texts, strict=True):
-                qk = quoted_keys.get(k)
-                if qk is None:
-                    qk = quoted_keys[k] = quoteattr(str(k))
-                pieces.append(f"<edge id={qk} source={quoted[u]} target={quoted[v]}>{text}"
-                              "</edge>\n")
-            yield "".join(pieces)
+            us, vs, ks, ds = zip(*batch, strict=True)
+            kinds = ["sees" if k == SEES else "transition" for k in ks]
+            texts = self._batches(kinds, ds, lambda i, us=us, vs=vs: f"{us[i]!r}->{vs[i]!r}")
+            yield "".join(map(edge_line, zip(map(quoted_keys.__getitem__, ks),
+                                             map(quoted.__getitem__, us),
+                                             map(quoted.__getitem__, vs), texts, strict=True)))
         yield "</graph>\n</graphml>\n"
 
     def chunks(self) -> Iterator[str]:
-        """:meth:`lines` joined into pieces of about :data:`_CHUNK` characters."""
+        """:meth:`lines` joined into pieces of at least :data:`_CHUNK` characters (a piece
+        that large already is passed on as it is)."""
         out, size = [], 0
-        for line in self.lines():
-            out.append(line)
-            size += len(line)
+        for piece in self.lines():
+            if len(piece) > _CHUNK and not out:
+                yield piece
+                continue
+            out.append(piece)
+            size += len(piece)
             if size > _CHUNK:
                 yield "".join(out)
                 out, size = [], 0
         yield "".join(out)
+
+
+class _Quoted(dict):
+    """Edge keys as quoted XML attribute values, each quoted once."""
+
+    def __missing__(self, key) -> str:
+        q = self[key] = quoteattr(str(key))
+        return q
 
 
 def _edge_batches(g, size: int) -> Iterator[list[tuple]]:

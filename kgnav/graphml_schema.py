@@ -39,10 +39,12 @@ from kgnav.model import MAX_COORD, SAFE_ID, SCHEMA_VERSION
 
 try:  # SIMD base64, several times faster than binascii on a model's 1e8 characters of features
     from pybase64 import b64decode as _pyb64decode
-    from pybase64 import b64encode as _b64encode
+    from pybase64 import b64encode_as_string as _b64encode
 except ImportError:  # pragma: no cover - pybase64 is a dependency; binascii does the same, slower
     _pyb64decode = None
-    from base64 import b64encode as _b64encode
+
+    def _b64encode(raw: bytes) -> str:
+        return binascii.b2a_base64(raw, newline=False).decode("ascii")
 
 
 def b64decode_strict(data: bytes | str) -> bytes:
@@ -56,7 +58,7 @@ def b64decode_strict(data: bytes | str) -> bytes:
 
 def b64encode(raw: bytes) -> str:
     """Standard, padded base64 of ``raw`` as text."""
-    return _b64encode(raw).decode("ascii")
+    return _b64encode(raw)
 
 
 _DTYPE = np.dtype("<f4")

@@ -177,3 +177,13 @@ def test_strict_base64_agrees_with_binascii_where_it_accepts(monkeypatch, decode
         return
     assert raw == binascii.a2b_base64(text)
     assert re.fullmatch(r"[A-Za-z0-9+/]*={0,2}", text) and len(text) % 4 == 0
+
+
+def test_both_base64_encoders_write_the_same():
+    import base64
+
+    rng = np.random.default_rng(0)
+    for n in (0, 1, 2, 3, 4, 8191, 8192):
+        raw = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        assert gs.b64encode(raw) == base64.b64encode(raw).decode("ascii")
+        assert binascii.b2a_base64(raw, newline=False).decode("ascii") == gs.b64encode(raw)
