@@ -667,7 +667,7 @@ class _Bulk:
             domain = DOMAIN[kind]
             if domain == "node":
                 head = b'<node id="%s"><data key="%s">%s</data>' % (
-                    _NODE_ID[kind], kid["node"]["kind"].encode(), kind.encode())
+                    _NODE_ID[kind], re.escape(kid["node"]["kind"]).encode(), kind.encode())
                 tail, groups = b"</node>\n", 1
             elif kind == "sees":
                 head = b'<edge id="sees" source="%s" target="%s">' % (
@@ -681,13 +681,18 @@ class _Bulk:
             parts, fields = [head], []
             for name, attr in rows[kind].items():
                 k = kid[domain].get(name)
-                if k is None or (isinstance(attr.codec, Ranges) and b.bins is None):
-                    # not declared, or no scan geometry: a line with it is not read in bulk
+                if k is None or not attr.required and (
+                    not isinstance(attr.codec, Features | Ranges)
+                    or isinstance(attr.codec, Ranges) and b.bins is None
+                ):
+                    # not declared; or optional, and either its value could be empty (present
+                    # and absent would look alike) or the graph has no scan geometry: a line
+                    # with it is not one the bulk reader takes
                     if attr.required:
                         raise _NotCanonical
                     continue
                 f = _Field(name, attr.codec, b)
-                data = b'<data key="%s">%s</data>' % (k.encode(), f.pattern)
+                data = b'<data key="%s">%s</data>' % (re.escape(k).encode(), f.pattern)
                 if not attr.required:
                     f.optional = True
                     data = b"(?:%s)?" % data  # absent: its group is empty (a value never is)
