@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
+from operator import itemgetter
 from xml.sax.saxutils import quoteattr
 
 from kgnav.atomic import atomic_open
@@ -106,6 +107,8 @@ class _Writer:
         self.sizes = {w: len(names) for w, names in self.allowed.items()}
         self.optional = {w: [n for n, a in attrs.items() if not a.required]
                          for w, attrs in rows.items()}
+        self.codecs = {w: {n: a.codec for n, a in attrs.items()} for w, attrs in rows.items()}
+        self._column_cache: dict = {}
 
     def _other_keys(self, ids, decl) -> dict[tuple[str, str], str]:
         """Declare a key per attribute outside the schema, typed from its values."""
@@ -126,9 +129,13 @@ class _Writer:
         for n, d in self.g.nodes(data=True):
             if not d.keys() <= known_node:
                 scan("node", f"node {n!r}", d)
-        for u, v, k, d in self.g.edges(keys=True, data=True):
-            if not d.keys() <= known_edge:
-                scan("edge", f"edge {u!r}->{v!r} ({k!r})", d)
+        succ = self.g._succ
+        if any(not d.keys() <= known_edge
+               for nbrs in succ.values() for keydict in nbrs.values() for d in keydict.values()):
+            for batch in _edge_batches(self.g, 4096):
+                for u, v, k, d in batch:
+                    if not d.keys() <= known_edge:
+                        scan("edge", f"edge {u!r}->{v!r} ({k!r})", d)
         out = {}
         for (domain, name), found in types.items():
             if found <= {"long", "double"}:
@@ -178,8 +185,65 @@ class _Writer:
             parts.append(f'<data key="{self.ids[domain, name]}">{text}</data>')
         return "".join(parts)
 
+    def _many(self, where: str, ds: list[dict], label) -> list[str]:
+        """:meth:`_data` of each of ``ds`` (elements of kind ``where``), a column at a time:
+        one call per attribute for all of them (a save formats ~1e6 values). Where some value
+        is missing or bad, each element of its group goes through :meth:`_data`, which names
+        the problem; ``label(i)`` names element ``i``."""
+        optional, size = self.optional[where], self.sizes[where]
+        out: list[str | None] = [None] * len(ds)
+        groups: dict[tuple[bool, ...], list[int]] = {}
+        if not optional and all(n == size for n in map(len, ds)):
+            groups[()] = list(range(len(ds)))
+        else:
+            for i, d in enumerate(ds):
+                present = tuple([name in d for name in optional])
+                if len(d) + present.count(False) != size:  # attributes outside the schema
+                    out[i] = self._data(where, label(i), d)
+                else:
+                    groups.setdefault(present, []).append(i)
+        for present, idx in groups.items():
+            names, codecs, template = self._columns(where, present)
+            sub = [ds[i] for i in idx] if len(idx) != len(ds) else ds
+            try:
+                columns = [list(map(itemgetter(name), sub)) for name in names]
+                texts = [codec.format_many(col) for codec, col in zip(codecs, columns,
+                                                                        strict=True)]
+                done = list(map(template.__mod__, zip(*texts, strict=True)))
+            except (KeyError, ValueError, TypeError):  # the slow way, naming the problem
+                done = [self._data(where, label(i), ds[i]) for i in idx]
+            for i, text in zip(idx, done, strict=True):
+                out[i] = text
+        return out
+
+    def _columns(self, where: str, present: tuple[bool, ...]):
+        """The attribute names, codecs and ``%s`` template of kind ``where`` with the optional
+        attributes ``present``."""
+        key = (where, present)
+        if key not in self._column_cache:
+            has = dict(zip(self.optional[where], present, strict=True))
+            names = [n for n, _ in self.formats[where] if has.get(n, True)]
+            codecs = [self.codecs[where][n] for n in names]
+            template = "".join(f'<data key="{self.ids[DOMAIN[where], n]}">%s</data>'
+                               for n in names)
+            self._column_cache[key] = (names, codecs, template)
+        return self._column_cache[key]
+
+    def _batches(self, kinds: list[str], ds: list[dict], label_of) -> list[str]:
+        """The <data> texts of elements ``ds`` of kinds ``kinds`` (in order), each kind
+        formatted in columns; ``label_of(i)`` names element ``i``."""
+        out: list[str] = [""] * len(ds)
+        for where in set(kinds):
+            idx = [i for i, kind in enumerate(kinds) if kind == where]
+            texts = self._many(where, [ds[i] for i in idx],
+                               lambda j, idx=idx: label_of(idx[j]))
+            for i, text in zip(idx, texts, strict=True):
+                out[i] = text
+        return out
+
     def lines(self) -> Iterator[str]:
-        """The document, one line at a time: the header, keys, graph, nodes, edges, the end."""
+        """The document in pieces of whole lines: the header, keys, graph, nodes, edges, the
+        end."""
         yield (
             "<?xml version='1.0' encoding='utf-8'?>\n"
             f'<graphml xmlns="{NS}" xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
@@ -194,37 +258,71 @@ class _Writer:
         yield self._data("graph", "", self.g.graph) + "\n"
         quoted = {}
         kind_key = self.ids["node", "kind"]
-        for n, d in self.g.nodes(data=True):
-            quoted[n] = q = quoteattr(n)
+        nodes = list(self.g._node.items())
+        for n, d in nodes:
             kind = d.get("kind")
             if kind != "state" and kind != "object":
                 raise ValueError(f"node {n!r}: kind {kind!r} is neither state nor object")
-            yield (
-                f'<node id={q}><data key="{kind_key}">{kind}</data>'
-                f"{self._data(kind, repr(n), d)}</node>\n"
-            )
-        quoted_keys: dict[str, str] = {}
-        for u, v, k, d in self.g.edges(keys=True, data=True):
-            where = "sees" if k == SEES else "transition"
-            qk = quoted_keys.get(k)
-            if qk is None:
-                qk = quoted_keys[k] = quoteattr(str(k))
-            yield (
-                f"<edge id={qk} source={quoted[u]} target={quoted[v]}>"
-                f"{self._data(where, f'{u!r}->{v!r}', d)}</edge>\n"
-            )
+            quoted[n] = quoteattr(n)
+        # whole batches of elements, of a few MB each (a state's features are the most of it)
+        dim = self.g.graph.get("feature_dim")
+        per_node = 6 * dim + 400 if isinstance(dim, int) and dim > 0 else 400
+        step = max(1, min(1024, (4 << 20) // per_node))
+        node_line = f'<node id=%s><data key="{kind_key}">%s</data>%s</node>\n'.__mod__
+        for start in range(0, len(nodes), step):
+            ns, ds = zip(*nodes[start : start + step], strict=True)
+            kinds = [d["kind"] for d in ds]
+            texts = self._batches(kinds, ds, lambda i, ns=ns: repr(ns[i]))
+            yield "".join(map(node_line, zip(map(quoted.__getitem__, ns), kinds, texts,
+                                             strict=True)))
+        quoted_keys = _Quoted()
+        edge_line = "<edge id=%s source=%s target=%s>%s</edge>\n".__mod__
+        for batch in _edge_batches(self.g, 4096):
+            us, vs, ks, ds = zip(*batch, strict=True)
+            kinds = ["sees" if k == SEES else "transition" for k in ks]
+            texts = self._batches(kinds, ds, lambda i, us=us, vs=vs: f"{us[i]!r}->{vs[i]!r}")
+            yield "".join(map(edge_line, zip(map(quoted_keys.__getitem__, ks),
+                                             map(quoted.__getitem__, us),
+                                             map(quoted.__getitem__, vs), texts, strict=True)))
         yield "</graph>\n</graphml>\n"
 
     def chunks(self) -> Iterator[str]:
-        """:meth:`lines` joined into pieces of about :data:`_CHUNK` characters."""
+        """:meth:`lines` joined into pieces of at least :data:`_CHUNK` characters (a piece
+        that large already is passed on as it is)."""
         out, size = [], 0
-        for line in self.lines():
-            out.append(line)
-            size += len(line)
+        for piece in self.lines():
+            if len(piece) > _CHUNK and not out:
+                yield piece
+                continue
+            out.append(piece)
+            size += len(piece)
             if size > _CHUNK:
                 yield "".join(out)
                 out, size = [], 0
         yield "".join(out)
+
+
+class _Quoted(dict):
+    """Edge keys as quoted XML attribute values, each quoted once."""
+
+    def __missing__(self, key) -> str:
+        q = self[key] = quoteattr(str(key))
+        return q
+
+
+def _edge_batches(g, size: int) -> Iterator[list[tuple]]:
+    """The graph's edges as ``(u, v, key, data)``, in its order, ``size`` at a time (straight
+    from its adjacency: networkx's edge view costs a fifth of a save)."""
+    batch: list[tuple] = []
+    for u, nbrs in g._succ.items():
+        for v, keydict in nbrs.items():
+            for k, d in keydict.items():
+                batch.append((u, v, k, d))
+            if len(batch) >= size:
+                yield batch
+                batch = []
+    if batch:
+        yield batch
 
 
 def to_graphml(model: AbstractModel) -> bytes:

@@ -3,11 +3,13 @@
 :func:`read_model` opens only a regular file within the size limit, refuses compressed data, and
 hands the file to one of two tokenizers, which both feed a :class:`_Builder`:
 
-* :func:`_read_canonical` reads the layout kgnav writes — the header, one key, node or edge per
-  line — with plain string splitting, in about half the time of building XML elements. It
-  accepts a file only if every line is in that layout and every byte is one XML reads the same
-  way (no markup, entity or CDATA inside a value, no control character, valid UTF-8); at the
-  first doubt, or at any error, it gives up and
+* :func:`_read_canonical` (:class:`_Canonical`) reads the layout kgnav writes — the header, one
+  key, node or edge per line — in about 0.3 of the time of building XML elements: the header
+  line by line, the nodes and edges a block at a time with one regular expression
+  (:class:`_Bulk`) whose values are checked a column at a time, and any block with a line
+  outside that layout line by line (every byte checked to be one XML reads the same way: no
+  markup, entity or CDATA inside a value, no control character, valid UTF-8). At the first
+  doubt, or at any error, it gives up and
 * :class:`_XmlReader` reads the file as any GraphML, with lxml's pull parser (elements freed as
   they are handled, so memory holds the model, not the document; when the graph's attributes
   come after the nodes, as networkx writes them, the nodes' and edges' text waits for them in
@@ -25,7 +27,6 @@ its line, and the reason; no other exception escapes :func:`read_model`.
 
 from __future__ import annotations
 
-import codecs
 import contextlib
 import errno
 import gc
@@ -48,7 +49,13 @@ from kgnav.graphml_schema import (
     KNOWN,
     NODE_ID,
     READABLE_VERSIONS,
+    Double,
+    Features,
     Long,
+    Numbers,
+    Ranges,
+    decode_features,
+    decode_ranges,
     parse_other,
     schema,
     show,
@@ -187,11 +194,11 @@ def _open_regular(path: str, limit: int):
         raise
 
 
-def _chunks(path: str, limit: int):
+def _chunks(path: str, limit: int, size: int = CHUNK):
     """The file's bytes in chunks; refuses compressed data and a file grown past ``limit``."""
     with _open_regular(path, limit) as fh:
         total = 0
-        while chunk := fh.read(CHUNK):
+        while chunk := fh.read(size):
             if not total:
                 for magic, name in _MAGIC.items():
                     if chunk.startswith(magic):
@@ -524,9 +531,11 @@ _KEY_LINE = re.compile(
     r'<key id="([A-Za-z0-9_]{1,32})" for="(graph|node|edge|all)" '
     r'attr\.name="([A-Za-z0-9_.:-]{1,128})" attr\.type="([a-z]{1,8})" />'
 )
-
+_GRAPH_LINE = '<graph edgedefault="directed">'
+_CLOSING = (b"</graph>\n", b"</graphml>\n")
 
 _LONGEST_LINE = 1 << 25  # a 2**20-d state is 6 MB
+BLOCK = 1 << 22  # bytes the canonical reader takes at a time (cut at a line's end)
 
 
 class _NotCanonical(Exception):
@@ -537,7 +546,7 @@ def _pairs(line: str, start: int, stop: int) -> dict[str, str]:
     """``{k1: v1, k2: v2}`` from ``k1">v1</data><data key="k2">v2`` at ``line[start:stop]``.
 
     Only the values are copied out of the line. (That no value holds ``<`` is checked once for
-    the whole file: see :func:`_read_canonical`.)
+    each block: see :meth:`_Canonical.line_block`.)
     """
     data: dict[str, str] = {}
     find = line.find
@@ -555,94 +564,391 @@ def _pairs(line: str, start: int, stop: int) -> dict[str, str]:
         start = end + 18
 
 
-class _Scan:
-    """The file's lines as text, if every byte is one XML reads as it is; counts the ``<``."""
-
-    def __init__(self, path: str, limit: int):
-        self.path, self.limit = path, limit
-        self.markup = 0  # the number of "<" in the file
-
-    def lines(self):
-        decoder = codecs.getincrementaldecoder("utf-8")("strict")
-        tail = ""
-        last = b""  # the previous chunk's last two bytes
-        for chunk in _chunks(self.path, self.limit):
-            a = np.frombuffer(chunk, np.uint8)
-            # no control character (XML refuses them; \r would read as \n) but tab and newline,
-            # no entity or character reference, no CDATA end, no U+FFFE or U+FFFF
-            controls = np.count_nonzero(a < 32)
-            if (
-                (controls and controls != np.count_nonzero(a == 10) + np.count_nonzero(a == 9))
-                or b"&" in chunk
-                or (b"]" in chunk and b"]]>" in last + chunk)
-            ):
-                raise _NotCanonical
-            last = chunk[-2:]
-            if not chunk.isascii() and (b"\xef\xbf\xbe" in chunk or b"\xef\xbf\xbf" in chunk):
-                raise _NotCanonical
-            self.markup += np.count_nonzero(a == 60)
-            text = tail + decoder.decode(chunk)
-            lines = text.split("\n")
-            tail = lines.pop()
+def _blocks(path: str, limit: int, size: int):
+    """The file's bytes in blocks of about ``size`` that end at a newline, then what follows
+    the last newline (empty for a file kgnav wrote)."""
+    tail = b""
+    for chunk in _chunks(path, limit, size):
+        cut = chunk.rfind(b"\n") + 1
+        if not cut:
+            tail += chunk
             if len(tail) > _LONGEST_LINE:
                 raise _NotCanonical
-            yield from lines
-        yield tail + decoder.decode(b"", final=True)
+            continue
+        yield b"".join((tail, memoryview(chunk)[:cut])) if tail else chunk[:cut]
+        tail = chunk[cut:]
+    yield tail
 
 
-def _read_canonical(path: str, limit: int) -> AbstractModel:
+# -- the bulk reader of the lines kgnav writes -------------------------------------------------
+# Each value pattern takes what kgnav writes, loosely enough that Python's own int() and float()
+# (the builder's parsers) decide what a number is; none takes '<', '&', ']', a newline, a control
+# character or a non-ASCII byte, so a matched line reads as XML reads it. Features and range
+# profiles are taken as exactly as many bytes as their base64 has (a skip, not a scan), which
+# the strict base64 decoder then refuses unless they are the alphabet and nothing else.
+_NUM = rb"([-+.0-9e]{1,40})"
+_INT = rb"([-+0-9]{1,20})"
+_SAFE = rb"([\x20-\x25\x27-\x3b\x3d-\x5c\x5e-\x7e]*)"  # printable ASCII but & < ]
+_NODE_ID = {"state": rb"(s[0-9]{1,18})", "object": rb"(o[0-9]{1,18})"}
+
+
+def _b64_chars(n_bytes: int) -> int:
+    return 4 * -(-n_bytes // 3)
+
+
+def _in_range(values: list, lo, hi) -> list:
+    # values are never NaN here (the patterns exclude it): min and max decide
+    if values and not (lo <= min(values) and max(values) <= hi):
+        raise _NotCanonical
+    return values
+
+
+class _Field:
+    """One attribute of a bulk line: its pattern (groups), and how its column is read."""
+
+    def __init__(self, name: str, codec, b: _Builder):
+        self.name, self.codec, self.b, self.optional = name, codec, b, False
+        if isinstance(codec, Long):
+            self.pattern, self.read = _INT, self.longs
+        elif isinstance(codec, Double):
+            self.pattern, self.read = _NUM, self.doubles
+        elif isinstance(codec, Numbers):
+            self.pattern, self.read = b" ".join([_NUM] * codec.n), self.numbers
+        elif isinstance(codec, Features):
+            n = _b64_chars(b.dim * 4)
+            self.pattern, self.read = b"((?s:.){%d})" % n, self.features
+        elif isinstance(codec, Ranges):
+            n = _b64_chars(b.bins * 2)
+            self.pattern, self.read = b"((?s:.){%d})" % n, self.ranges
+        else:  # text: the codec checks it
+            self.pattern, self.read = _SAFE, self.texts
+        self.groups = re.compile(self.pattern).groups
+
+    def longs(self, cols) -> list:
+        return _in_range(list(map(int, cols[0])), self.codec.lo, self.codec.hi)
+
+    def doubles(self, cols) -> list:
+        return _in_range(list(map(float, cols[0])), self.codec.lo, self.codec.hi)
+
+    def numbers(self, cols) -> list:
+        bound = self.codec.bound
+        return list(zip(*(_in_range(list(map(float, c)), -bound, bound) for c in cols),
+                        strict=True))
+
+    def features(self, cols) -> list:
+        dim = self.b.dim
+        return [decode_features(text, dim, strict=True) for text in cols[0]]
+
+    def ranges(self, cols) -> list:
+        bins = self.b.bins
+        return [decode_ranges(text, bins, strict=True) if text else None for text in cols[0]]
+
+    def texts(self, cols) -> list:
+        parse, b = self.codec.parse, self.b
+        return [parse(text.decode("ascii"), b) for text in cols[0]]
+
+
+class _Bulk:
+    """The lines of nodes and edges exactly as kgnav writes them for the file's keys, as one
+    regular expression: ``findall`` over a block gives every line's values in one call."""
+
+    KINDS = ("state", "object", "sees", "transition")
+
+    def __init__(self, b: _Builder):
+        kid = {d: {name: k for k, name in b.names[d].items() if name} for d in ("node", "edge")}
+        if "kind" not in kid["node"]:
+            raise _NotCanonical
+        rows = schema(b.version)
+        self.fields: dict[str, list[_Field]] = {}
+        alternatives = []
+        self.first: dict[str, int] = {}  # kind -> index of its first group
+        at = 0
+        for kind in self.KINDS:
+            domain = DOMAIN[kind]
+            if domain == "node":
+                head = b'<node id="%s"><data key="%s">%s</data>' % (
+                    _NODE_ID[kind], re.escape(kid["node"]["kind"]).encode(), kind.encode())
+                tail, groups = b"</node>\n", 1
+            elif kind == "sees":
+                head = b'<edge id="sees" source="%s" target="%s">' % (
+                    _NODE_ID["state"], _NODE_ID["object"])
+                tail, groups = b"</edge>\n", 2
+            else:
+                actions = b"|".join(a.encode() for a in ACTIONS)
+                head = b'<edge id="(%s)" source="%s" target="%s">' % (
+                    actions, _NODE_ID["state"], _NODE_ID["state"])
+                tail, groups = b"</edge>\n", 3
+            parts, fields = [head], []
+            for name, attr in rows[kind].items():
+                k = kid[domain].get(name)
+                if k is None or not attr.required and (
+                    not isinstance(attr.codec, Features | Ranges)
+                    or isinstance(attr.codec, Ranges) and b.bins is None
+                ):
+                    # not declared; or optional, and either its value could be empty (present
+                    # and absent would look alike) or the graph has no scan geometry: a line
+                    # with it is not one the bulk reader takes
+                    if attr.required:
+                        raise _NotCanonical
+                    continue
+                f = _Field(name, attr.codec, b)
+                data = b'<data key="%s">%s</data>' % (re.escape(k).encode(), f.pattern)
+                if not attr.required:
+                    f.optional = True
+                    data = b"(?:%s)?" % data  # absent: its group is empty (a value never is)
+                parts.append(data)
+                fields.append(f)
+                groups += f.groups
+            parts.append(tail)
+            self.first[kind] = at
+            at += groups
+            self.fields[kind] = fields
+            alternatives.append(b"^" + b"".join(parts))
+        self.junk = at  # the group of a line that is none of these
+        alternatives.append(rb"^([^\n]*\n)")
+        self.rx = re.compile(b"|".join(alternatives), re.MULTILINE)
+        self.actions = {a.encode(): a for a in ACTIONS}
+
+    def values(self, kind: str, lines: list[tuple]) -> list[dict]:
+        """The attribute dicts of ``lines`` (all of ``kind``), every value checked as the
+        builder checks it; :class:`_NotCanonical` at the first doubt."""
+        if not lines:
+            return []
+        first = self.first[kind] + (1 if kind == "state" or kind == "object" else
+                                    2 if kind == "sees" else 3)
+        fields = self.fields[kind]
+        n_groups = sum(f.groups for f in fields)
+        cols = list(zip(*lines, strict=False))[first : first + n_groups]
+        names, columns, at = ["kind"], [[kind] * len(lines)], 0
+        optional = []
+        for f in fields:
+            column = f.read(cols[at : at + f.groups])
+            at += f.groups
+            if f.optional:
+                optional.append(f.name)
+            names.append(f.name)
+            columns.append(column)
+        out = [dict(zip(names, row, strict=False)) for row in zip(*columns, strict=False)]
+        for name in optional:  # absent: not in the dict (the builder would not have it either)
+            for d in out:
+                if d[name] is None:
+                    del d[name]
+        return out
+
+
+class _Canonical:
+    """A file in the exact layout kgnav writes; :class:`_NotCanonical` at anything else.
+
+    The header (XML declaration, keys, graph attributes) is read line by line through the
+    builder. The nodes and edges are read a block at a time by :class:`_Bulk`, which checks
+    every value as the builder would (ranges, finiteness, ids, classes, episodes, ends,
+    duplicates) and gives up at the first doubt; a block with any other line (an attribute
+    outside the schema, a number written otherwise, ...) goes line by line through the builder.
+    Every doubt or error sends the whole file to the XML reader, whose verdict stands.
+    """
+
+    def __init__(self, path: str, limit: int, block: int = BLOCK):
+        self.path, self.limit, self.block = path, limit, block
+        self.b = _Builder(path)
+        self.state = 0  # 0, 1 header lines; 2 keys; 3 graph data; 4 body; 5 </graphml>; 6 end
+        self.n = 0  # lines read
+        self.bulk: _Bulk | None = None
+        self.ids: dict[bytes, str] = {}  # node ids as the bulk reader sees them
+        self.stats = {"bulk": 0, "line": 0}  # lines read each way (for tests and benchmarks)
+
+    def read(self) -> AbstractModel:
+        for block in _blocks(self.path, self.limit, self.block):
+            if self.state < 4:
+                # the header line by line, up to the graph's data line; the rest in bulk
+                at = block.find(f"\n{_GRAPH_LINE}\n".encode())
+                end = block.find(b"\n", at + len(_GRAPH_LINE) + 2) + 1 if at >= 0 else 0
+                if end:
+                    self.line_block(block[:end])
+                    block = block[end:]
+                    if self.state != 4:
+                        raise _NotCanonical
+                else:
+                    self.line_block(block)
+                    continue
+            if self.state == 4 and self.bulk_block(block):
+                continue
+            self.line_block(block)
+        if self.state != 6:
+            raise _NotCanonical
+        return self.b.finish()
+
+    # -------------------------------------------------------------------- in bulk
+    def bulk_block(self, block: bytes) -> bool:
+        """Read a block of node and edge lines (and the closing lines) in bulk; False when some
+        line is not one the bulk reader takes."""
+        if self.bulk is None:
+            self.bulk = _Bulk(self.b)
+        bulk = self.bulk
+        lines = bulk.rx.findall(block)
+        junk = bulk.junk
+        nodes, edges = [], []
+        state, obj = bulk.first["state"], bulk.first["object"]
+        ends = 0
+        for i, m in enumerate(lines):
+            if m[junk]:  # the closing lines may end the block; anything else: line by line
+                rest = [m[junk] for m in lines[i:]]
+                if rest != list(_CLOSING[: len(rest)]):
+                    return False
+                ends = len(rest)
+                lines = lines[:i]
+                break
+            if m[state] or m[obj]:
+                if edges:
+                    return False  # a node after an edge: kgnav never writes that
+                nodes.append(m)
+            else:
+                edges.append(m)
+        if nodes:
+            self.add_nodes(nodes)
+        if edges:
+            self.add_edges(edges)
+        self.n += len(lines) + ends
+        self.stats["bulk"] += len(lines) + ends
+        self.state += ends
+        return True
+
+    def add_nodes(self, lines: list[tuple]) -> None:
+        bulk, b = self.bulk, self.b
+        s, o = bulk.first["state"], bulk.first["object"]
+        states = [m for m in lines if m[s]]
+        objects = [m for m in lines if not m[s]]
+        state_attrs = bulk.values("state", states)
+        object_attrs = bulk.values("object", objects)
+        if states and not {d["episode"] for d in state_attrs} <= b.episodes:
+            raise _NotCanonical
+        if objects and not {d["cls"] for d in object_attrs} <= b.classes:
+            raise _NotCanonical
+        s_attrs, o_attrs = iter(state_attrs), iter(object_attrs)
+        nodes, succ, pred, ids = b.nodes, b.succ, b.pred, self.ids
+        for m in lines:
+            raw = m[s] or m[o]
+            nid = raw.decode("ascii")
+            if nid in nodes:
+                raise _NotCanonical  # a duplicate
+            nodes[nid] = next(s_attrs) if m[s] else next(o_attrs)
+            succ[nid] = {}
+            pred[nid] = {}
+            ids[raw] = nid
+
+    def add_edges(self, lines: list[tuple]) -> None:
+        bulk, b = self.bulk, self.b
+        e, t = bulk.first["sees"], bulk.first["transition"]
+        sees = [m for m in lines if m[e]]
+        trans = [m for m in lines if not m[e]]
+        s_attrs = iter(bulk.values("sees", sees))
+        t_attrs = iter(bulk.values("transition", trans))
+        succ, pred, ids, actions = b.succ, b.pred, self.ids, bulk.actions
+        try:
+            for m in lines:
+                if m[e]:
+                    key, u, v, attrs = SEES, ids[m[e]], ids[m[e + 1]], next(s_attrs)
+                else:
+                    key, u, v = actions[m[t]], ids[m[t + 1]], ids[m[t + 2]]
+                    attrs = next(t_attrs)
+                nbrs = succ[u]
+                keydict = nbrs.get(v)
+                if keydict is None:
+                    nbrs[v] = pred[v][u] = {key: attrs}
+                elif key in keydict:
+                    raise _NotCanonical  # a duplicate
+                else:
+                    keydict[key] = attrs
+        except KeyError:  # a node not read (yet): the line-by-line reader knows what to do
+            raise _NotCanonical from None
+
+    # -------------------------------------------------------------------- line by line
+    def line_block(self, block: bytes) -> None:
+        """Read a block line by line through the builder, if every byte of it is one XML reads
+        as it is and every ``<`` in it is markup the lines account for."""
+        a = np.frombuffer(block, np.uint8)
+        # no control character (XML refuses them; \r would read as \n) but tab and newline, no
+        # entity or character reference, no CDATA end, no U+FFFE or U+FFFF
+        controls = np.count_nonzero(a < 32)
+        if (
+            (controls and controls != np.count_nonzero(a == 10) + np.count_nonzero(a == 9))
+            or b"&" in block
+            or b"]]>" in block
+            or (not block.isascii() and (b"\xef\xbf\xbe" in block or b"\xef\xbf\xbf" in block))
+        ):
+            raise _NotCanonical
+        lines = block.decode("utf-8").split("\n")  # whole lines: no character is cut
+        if lines.pop():
+            raise _NotCanonical  # bytes after the last newline
+        markup = 0
+        for line in lines:
+            self.n += 1
+            markup += self.line(line)
+        self.stats["line"] += len(lines)
+        if markup != np.count_nonzero(a == 60):  # a "<" inside some value: markup, CDATA...
+            raise _NotCanonical
+
+    def line(self, line: str) -> int:
+        """Read one line; the number of ``<`` of its markup."""
+        b, n, state = self.b, self.n, self.state
+        if state == 4:
+            if line.endswith("</data></edge>"):
+                # ids need no check here: the builder only takes a node id of the schema's
+                # form, and an edge id or end that is not one it knows sends the file to the
+                # XML reader
+                q = line.find('"><data key="')
+                tag = line[:q].split('"')
+                if q < 0 or len(tag) != 6 or tag[0] != "<edge id=" or tag[2] != " source=" or (
+                    tag[4] != " target="
+                ):
+                    raise _NotCanonical
+                data = _pairs(line, q + 13, len(line) - 14)
+                b.edge(tag[1], tag[3], tag[5], data, n)
+            elif line.endswith("</data></node>"):
+                q = line.find('"><data key="')
+                if q < 10 or not line.startswith('<node id="') or '"' in line[10:q]:
+                    raise _NotCanonical
+                data = _pairs(line, q + 13, len(line) - 14)
+                nid = line[10:q]
+                b.node(nid, data, n)
+                self.ids[nid.encode()] = nid
+            elif line == "</graph>":
+                self.state = 5
+                return 1
+            else:
+                raise _NotCanonical
+            return 2 + 2 * len(data)
+        if state < 2:
+            if line != _HEADER[state]:
+                raise _NotCanonical
+            self.state += 1
+            return 1
+        if state == 2:
+            m = _KEY_LINE.fullmatch(line)
+            if m is not None:
+                b.key(m[1], m[2], m[3], m[4], n)
+                return 1
+            if line != _GRAPH_LINE:
+                raise _NotCanonical
+            self.state = 3
+            return 1
+        if state == 3:
+            data = {}
+            if line:
+                if not (line.startswith('<data key="') and line.endswith("</data>")):
+                    raise _NotCanonical
+                data = _pairs(line, 11, len(line) - 7)
+            b.graph(data, n, True)
+            self.state = 4
+            return 2 * len(data)
+        if state == 5 and line == "</graphml>":
+            self.state = 6
+            return 1
+        raise _NotCanonical
+
+
+def _read_canonical(path: str, limit: int, block: int = BLOCK) -> AbstractModel:
     """Read a file in the exact layout kgnav writes; :class:`_NotCanonical` at any other."""
-    b = _Builder(path)
-    scan = _Scan(path, limit)
-    lines = enumerate(scan.lines(), 1)
-    for want in _HEADER:
-        if next(lines, (0, None))[1] != want:
-            raise _NotCanonical
-    markup = 2  # "<" the lines parsed hold: two in the header
-    line = ""
-    for n, line in lines:
-        m = _KEY_LINE.fullmatch(line)
-        if m is None:
-            break
-        b.key(m[1], m[2], m[3], m[4], n)
-        markup += 1
-    if line != '<graph edgedefault="directed">':
-        raise _NotCanonical
-    n, line = next(lines)
-    data = {}
-    if line:
-        if not (line.startswith('<data key="') and line.endswith("</data>")):
-            raise _NotCanonical
-        data = _pairs(line, 11, len(line) - 7)
-    b.graph(data, n, True)
-    markup += 3 + 2 * len(data)  # graph open and close, graphml close, data
-    node, edge = b.node, b.edge
-    for n, line in lines:
-        # ids need no check here: the builder only takes a node id of the schema's form, and
-        # an edge id or end that is not one it knows sends the file to the XML reader
-        if line.endswith("</data></edge>"):
-            q = line.find('"><data key="')
-            tag = line[:q].split('"')
-            if q < 0 or len(tag) != 6 or tag[0] != "<edge id=" or tag[2] != " source=" or (
-                tag[4] != " target="
-            ):
-                raise _NotCanonical
-            data = _pairs(line, q + 13, len(line) - 14)
-            edge(tag[1], tag[3], tag[5], data, n)
-        elif line.endswith("</data></node>"):
-            q = line.find('"><data key="')
-            if q < 10 or not line.startswith('<node id="') or '"' in line[10:q]:
-                raise _NotCanonical
-            data = _pairs(line, q + 13, len(line) - 14)
-            node(line[10:q], data, n)
-        else:
-            break
-        markup += 2 + 2 * len(data)
-    if [line, *(text for _, text in lines)] != ["</graph>", "</graphml>", ""]:
-        raise _NotCanonical
-    if scan.markup != markup:  # a "<" inside some value: markup, a comment, CDATA...
-        raise _NotCanonical
-    return b.finish()
+    return _Canonical(path, limit, block).read()
 
 
 # ---------------------------------------------------------------------------------------- XML

@@ -5,6 +5,7 @@ import networkx as nx
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from kgnav import AbstractModel, Detection, ModelFileError, SchemaVersionError
 from kgnav import graphml as gml
@@ -235,3 +236,54 @@ def test_saved_files_are_read_by_the_fast_reader(tmp_path, episode_model):
     path = tmp_path / "e.graphml"
     episode_model.save(path)
     assert gr._read_canonical(str(path), 1 << 30) == episode_model
+
+
+def _element_by_element(model) -> bytes:
+    """The document as the writer wrote it before it formatted whole columns: each node's and
+    edge's values one element at a time (``_Writer._data``)."""
+    w = gml._Writer(model)
+    g = model.graph
+    head = list(w.lines())[:len(w.decl) + 3]  # declaration, keys, graph, its data
+    out = head[:]
+    kind_key = w.ids["node", "kind"]
+    for n, d in g.nodes(data=True):
+        out.append(f'<node id="{n}"><data key="{kind_key}">{d["kind"]}</data>'
+                   f'{w._data(d["kind"], repr(n), d)}</node>\n')
+    for u, v, k, d in g.edges(keys=True, data=True):
+        where = "sees" if k == "sees" else "transition"
+        out.append(f'<edge id="{k}" source="{u}" target="{v}">{w._data(where, "", d)}</edge>\n')
+    out.append("</graph>\n</graphml>\n")
+    return "".join(out).encode()
+
+
+@settings(max_examples=40, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(models(max_states=10) | models(max_states=10, scan=True), st.integers(0, 3))
+def test_columns_format_as_elements_do(m, odd):
+    """Formatting a column at a time writes what formatting each element did, with attributes
+    outside the schema, numpy scalars and an optional attribute on some states only."""
+    states = list(m.states())
+    s = states[len(states) // 2]
+    if odd == 1:
+        m.graph.nodes[s]["note"] = "kitchen & hall"
+    elif odd == 2:
+        m.graph.nodes[s]["x"] = np.float64(m.graph.nodes[s]["x"])
+        m.graph.nodes[s]["step"] = np.int64(7)
+    elif odd == 3:
+        for *_ends, k, d in m.graph.edges(keys=True, data=True):
+            if k == "sees":
+                d["bbox"] = np.array(d["bbox"])
+                d["pixels"] = 3.0
+                break
+    assert gml.to_graphml(m) == _element_by_element(m)
+
+
+def test_a_bad_value_among_many_is_named(tmp_path):
+    from kgnav.synthetic import SyntheticWorld
+
+    m = SyntheticWorld(seed=1, feature_dim=4, n_objects=5).explore(60, seed=0)
+    u, v, k = next((u, v, k) for u, v, k in m.graph.edges(keys=True) if k == "sees")
+    m.graph.edges[u, v, k]["obs"] = (1.0, 2.0)
+    with pytest.raises(ValueError, match=rf"sees '{u}'->'{v}': attribute 'obs': 2 numbers"):
+        m.save(tmp_path / "m.graphml")
+    assert not list(tmp_path.iterdir())
