@@ -309,6 +309,36 @@ def test_a_late_match_into_another_house_is_refused():
     assert sum(n for k, n in rel.decisions.items() if k.startswith("episode match refused"))
 
 
+def test_a_room_of_the_same_shape_with_other_furniture_is_not_merged():
+    """Another house's room of exactly room A's shape: the geometry fits the whole episode, but
+    where the memory has a chair and a bed the episode saw a toilet and a sink (each twice):
+    not merged. The same episode with room A's furniture is."""
+    chair, bed = Detection("chair", (1.0, 3.0, 0.5)), Detection("bed", (5.0, 3.0, 0.5))
+    memory = Memory({"a-e000": stored_model(objects=(chair, bed, Detection("sofa", (3, 1, 0.4))))},
+                    threshold=0.05)
+    T_true = (2.0, -1.0, 0.7)
+    inv = se2.inverse(T_true)
+    for furniture, merged in ((("toilet", "sink", "bathtub"), False),
+                              (("chair", "bed", "sofa"), True)):
+        where = [(1.0, 3.0), (5.0, 3.0), (3.0, 1.0)]
+        dets = tuple(Detection(c, (*se2.apply_to_point(inv, *p), 0.5))
+                     for c, p in zip(furniture, where, strict=True))
+        states = [AbstractState(st.features, st.pose, dets, st.ranges)
+                  for st in episode_states(ROOM_A, T_true)]
+        rel = Relocalizer(memory, RelocationConfig(verify_checks=0))  # no undo on the way
+        assert run(rel, states) is not None
+        episode = AbstractModel(DIM, model_id="b-e000", extractor="toy", scan=SCAN)
+        for k, st in enumerate(states):
+            episode.add_state(st.features, st.pose, st.detections, step=k, ranges=st.ranges)
+        assert rel.object_support(episode, "a-e000", T_true) == (3, 3 if merged else 0)
+        assert (rel.mergeable(episode) is not None) is merged
+        if not merged:
+            assert rel.decisions["merge refused: objects"] == 1
+            off = Relocalizer(memory, RelocationConfig(verify_checks=0, merge_objects=0))
+            run(off, states)
+            assert off.mergeable(episode) is not None  # geometry alone would merge it
+
+
 @pytest.mark.parametrize("walls", [ROOM_A, ROOM_B])
 def test_cast_profiles_see_the_walls(walls):
     r = cast(walls, (2.5, 1.0, 0.0))

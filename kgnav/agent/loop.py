@@ -72,7 +72,7 @@ class AgentConfig:
     confirm_distance: float = 2.5  # see an object this close before stopping at it (0: off)
     confirm_steps: int = 8  # turns spent looking for it on arrival before giving it up
     map_size: int = 480  # starting side in cells; the map grows
-    look_around: bool = False  # turn a full circle before the first move (turns cost no path
+    look_around: bool = True  # turn a full circle before the first move (turns cost no path
     # length); with a memory, the turn ends once a relocation is accepted
     map_resolution: float = 0.05
 

@@ -68,6 +68,8 @@ class RelocationConfig:
     late_match: bool = True  # at the end, look for the models the whole episode fits (a merge
     # for an episode that never relocated, bridges for one that did)
     late_hypotheses: int = 2  # transforms judged per model (the most voted by feature matches)
+    merge_objects: int = 3  # before merging, the episode's objects (seen twice) mapped near
+    # stored ones must mostly find their class there, once at least this many can be checked
 
 
 @dataclass
@@ -371,12 +373,43 @@ class Relocalizer:
             scans = [scans[i] for i in np.linspace(0, len(scans) - 1, c.merge_scans).astype(int)]
         return scans
 
-    def _episode_verdict(self, model_id: str, T, scans) -> Verdict:
-        """``T`` judged against the whole episode's profiles ``scans``, ambiguity included."""
+    def _episode_verdict(self, model_id: str, T, scans, episode=None) -> Verdict:
+        """``T`` judged against the whole episode's profiles ``scans``, ambiguity included,
+        and (with the ``episode``'s model) against the objects: a room of the same shape in
+        another house rarely holds the same furniture in the same places."""
+        c = self.config
         v = self.verify(model_id, T, scans)
-        if v.ok and self.config.unique and self.ambiguity(model_id, v, scans) is not None:
+        if v.ok and c.unique and self.ambiguity(model_id, v, scans) is not None:
             v = Verdict(False, "ambiguous", v.transform, v.inliers, v.conflicts, v.points)
+        if v.ok and episode is not None and c.merge_objects > 0 and c.landmark_radius > 0:
+            checked, supported = self.object_support(episode, model_id, v.transform)
+            if checked >= c.merge_objects and supported < c.merge_support * checked:
+                v = Verdict(False, "objects", v.transform, v.inliers, v.conflicts, v.points)
         return v
+
+    def object_support(self, episode, model_id: str, T) -> tuple[int, int]:
+        """How many of the ``episode``'s objects seen at least twice land, mapped by ``T``,
+        within ``landmark_radius`` of objects of the stored model (checked), and how many of
+        those find one of their own class there (supported)."""
+        stored = self.memory.model(model_id)
+        sn = stored.graph.nodes
+        objs = list(stored.objects())
+        if not objs:
+            return 0, 0
+        xy = np.array([(sn[o]["x"], sn[o]["y"]) for o in objs], float)
+        cls = np.array([sn[o]["cls"] for o in objs], dtype=object)
+        checked = supported = 0
+        en = episode.graph.nodes
+        for o in episode.objects():
+            d = en[o]
+            if d["n_views"] < 2:
+                continue  # a glimpse says little
+            x, y = se2.apply_to_point(T, d["x"], d["y"])
+            near = np.hypot(xy[:, 0] - x, xy[:, 1] - y) <= self.config.landmark_radius
+            if near.any():
+                checked += 1
+                supported += bool((cls[near] == d["cls"]).any())
+        return checked, supported
 
     def _episode_hypotheses(self, episode, refused: dict) -> dict[str, list]:
         """Frame transforms into stored models proposed by the feature matches of the
@@ -425,7 +458,8 @@ class Relocalizer:
         self.final = {}
         refused: dict[str, list] = {}
         if r is not None:
-            v = self.final[r.model_id] = self._episode_verdict(r.model_id, r.transform, scans)
+            v = self.final[r.model_id] = self._episode_verdict(r.model_id, r.transform, scans,
+                                                               episode)
             if v.ok:
                 r.transform = v.transform  # aligned on the whole episode: the most precise
             else:
@@ -441,7 +475,7 @@ class Relocalizer:
             if r is not None and mid == r.model_id:
                 continue
             for T in Ts:
-                v = self._episode_verdict(mid, T, scans)
+                v = self._episode_verdict(mid, T, scans, episode)
                 if not v.ok:
                     self.decisions[f"episode match refused: {v.reason}"] += 1
                 elif (mid not in found

@@ -348,10 +348,10 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
         record["relocation"] = {"distance": round(float(reloc.distance), 4),
                                 **_relocation_fields(gt, reloc)}
     rel = getattr(agent, "relocalizer", None)
+    into = agent.mergeable() if variant.learns else None  # (the merge checks count decisions)
     if rel is not None:  # why hypotheses were accepted or refused, and bridges found
         record["relocation_decisions"] = dict(sorted(rel.decisions.items()))
     if variant.learns:
-        into = agent.mergeable()
         bridges = {}
         if reloc is not None:
             record["relocation"]["merged"] = into is reloc
@@ -512,7 +512,9 @@ def pre_explore(cfg: EvalConfig, scene: int, extractor_name: str
         stop = agent.actions.index("stop")
         for _ in range(cfg.pre_explore_steps):
             action = agent.act(obs)
-            idle = idle + 1 if agent._target is None else 0
+            # (the look-around at the start has no target either)
+            idle = idle + 1 if agent._target is None and agent.step_ > agent.actions.full_turn \
+                else 0
             # a full turn with nothing left to explore
             if idle >= agent.actions.full_turn or action == stop:
                 break
