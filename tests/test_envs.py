@@ -19,7 +19,7 @@ import pytest
 
 from kgnav.agent.camera import Camera
 from kgnav.agent.features import make_extractor
-from kgnav.agent.loop import ObjectNavAgent, Target
+from kgnav.agent.loop import AgentConfig, ObjectNavAgent, Target
 from kgnav.agent.segmenter import make_segmenter
 from kgnav.envs import (
     ENVS,
@@ -464,7 +464,9 @@ def test_a_segmenter_vocabulary_is_mapped_to_the_environments_by_name():
     env = GridRoom(0)
     spec = env.env_spec
     seg = OtherVocabulary(spec)
-    agent = ObjectNavAgent.for_env(env, seg, make_extractor("opencv-gist"))
+    # (no look-around: 8 of the room's 60 steps would go to turning in place)
+    agent = ObjectNavAgent.for_env(env, seg, make_extractor("opencv-gist"),
+                                   config=AgentConfig(look_around=False))
     obs, _ = env.reset(options={"episode": 0})
     agent.reset("crate")
     p = agent.extract(obs)

@@ -478,15 +478,14 @@ class Relocalizer:
                 v = self._episode_verdict(mid, T, scans, episode)
                 if not v.ok:
                     self.decisions[f"episode match refused: {v.reason}"] += 1
-                elif (mid not in found
-                             or v.inliers - v.conflicts > found[mid].inliers - found[mid].conflicts):
+                elif mid not in found or _margin(v) > _margin(found[mid]):
                     found[mid] = v
             if mid in found:
                 self.final[mid] = found[mid]
         dropped = set(self.bridges) - set(found)
         self.decisions["bridge refuted by episode"] += len(dropped)
         if r is None and found and c.late_match:
-            mid = max(sorted(found), key=lambda m: found[m].inliers - found[m].conflicts)
+            mid = max(sorted(found), key=lambda m: _margin(found[m]))
             v = found.pop(mid)
             r = self.late = Relocation(len(self._all), mid, "", math.nan, v.transform, (0.0, 0.0),
                                        inliers=round(v.inliers, 3),
@@ -633,6 +632,10 @@ class Relocalizer:
             if v.ok:
                 self.bridges[m.model_id] = v
                 self.decisions["bridge"] += 1
+
+
+def _margin(v: Verdict) -> float:
+    return v.inliers - v.conflicts
 
 
 def _alternatives(T, centre):
