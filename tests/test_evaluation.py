@@ -63,9 +63,16 @@ def test_wrong_merges_and_bridges_are_counted_from_ground_truth():
                             {"model": "h-e002", "error_m": 0.05, "error_deg": 1.0},
                             {"model": "other-e000"}]),
             rec(False, 0.1, [{"model": "h-e003", "error_m": 9.0, "error_deg": 0.0}])]
+    late = {"variant": "si", "scene": "h", "success": False, "spl": 0.0, "softspl": 0.0,
+            "dts": 1.0, "relocated": False, "failure": "Exploration",
+            "late_merge": {"model": "h-e000", "same_house": True, "error_m": 0.1,
+                           "error_deg": 45.0},
+            "bridges": [{"model": "h-e004", "error_m": 3.0, "error_deg": 0.0}]}
     s = summarize(recs)["si"]
     assert s["wrong_merges"] == 2  # 1.5 m off, and into another house; unmerged ones don't count
     assert s["wrong_bridges"] == 2  # turned round, and another house's model
+    s = summarize([*recs, late])["si"]
+    assert s["late_merges"] == 1 and s["wrong_merges"] == 3 and s["wrong_bridges"] == 3
 
 
 def test_variants_parse_and_config_checks():
