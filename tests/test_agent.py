@@ -164,6 +164,36 @@ def test_frontier_policy_picks_frontiers_and_gives_up_when_closed():
     assert pol.select(m, (0.0, 0.0, 0.0), "chair", FMMPlanner()) is None
 
 
+def test_remembered_walls_guide_the_planner_but_never_rule_a_goal_out():
+    """A goal boxed in by walls only a remembered model saw (a doorway its coarse range
+    profiles caught as closed) is still planned for; boxed in by walls the agent saw itself
+    it is not."""
+    m = MapBuilder(Camera(), size=120).reset()
+    goal = np.zeros((120, 120), bool)
+    goal[60, 100] = True
+    box = np.zeros((120, 120), np.uint8)
+    box[50:71, 90] = box[50:71, 110] = box[50, 90:111] = box[70, 90:111] = 1
+    m.prior_obstacle, m.prior_explored = box.copy(), np.zeros_like(box)
+    plan = FMMPlanner().plan(m, (0.0, 0.0, 0.0), goal, key="g")
+    assert math.isfinite(plan.distance)
+    m.prior_obstacle = m.prior_explored = None
+    m.obstacle |= box
+    assert not math.isfinite(FMMPlanner().plan(m, (0.0, 0.0, 0.0), goal, key="g").distance)
+
+
+def test_when_the_memory_leaves_no_frontier_the_agent_looks_again_where_it_has_not():
+    """A remembered model covers the whole map, so no frontier is left with it; the policy
+    then picks a frontier of what the agent itself has seen, instead of giving up."""
+    m = MapBuilder(Camera(), size=100).reset()
+    m.explored[45:55, 45:55] = 1
+    m.prior_explored = np.ones_like(m.explored)
+    m.prior_obstacle = np.zeros_like(m.explored)
+    assert not frontiers(m)[1].any()
+    pol = FrontierPolicy()
+    cell = pol.select(m, (0.0, 0.0, 0.0), "chair", FMMPlanner())
+    assert cell is not None and frontiers(m, prior=False)[0][cell] > 0
+
+
 def test_policy_registry_and_cooccurrence(tiny):
     assert make_policy("semantic").name == "semantic"
     with pytest.raises(KgnavError, match="unknown global policy"):

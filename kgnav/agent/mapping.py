@@ -95,17 +95,19 @@ class EpisodeMap:
     def inside(self, i: int, j: int) -> bool:
         return 0 <= i < self.obstacle.shape[0] and 0 <= j < self.obstacle.shape[1]
 
-    def blocked(self, crop=None) -> np.ndarray:
-        """uint8 obstacles, bumps and remembered obstacles (over ``crop`` = (i0, i1, j0, j1))."""
+    def blocked(self, crop=None, prior: bool = True) -> np.ndarray:
+        """uint8 obstacles, bumps and (with ``prior``) remembered obstacles (over ``crop`` =
+        (i0, i1, j0, j1))."""
         i0, i1, j0, j1 = crop if crop is not None else (0, self.shape[0], 0, self.shape[1])
         occ = self.obstacle[i0:i1, j0:j1] | self.bumped[i0:i1, j0:j1]
-        if self.prior_obstacle is not None:
+        if prior and self.prior_obstacle is not None:
             occ = occ | self.prior_obstacle[i0:i1, j0:j1]
         return occ
 
-    def known(self) -> np.ndarray:
-        """uint8 cells seen by the agent or, before it, by a remembered model."""
-        if self.prior_explored is None:
+    def known(self, prior: bool = True) -> np.ndarray:
+        """uint8 cells seen by the agent or (with ``prior``), before it, by a remembered
+        model."""
+        if not prior or self.prior_explored is None:
             return self.explored
         return self.explored | self.prior_explored
 

@@ -167,14 +167,15 @@ class FMMPlanner:
         return max(i0, 0), min(i1, H), max(j0, 0), min(j1, W)
 
     def traversable(self, m: EpisodeMap, crop, agent: tuple[int, int], *,
-                    squeeze: bool = False) -> np.ndarray:
+                    squeeze: bool = False, prior: bool = True) -> np.ndarray:
         """Cells of ``crop`` the agent's centre may occupy (unexplored counts as free).
 
         ``squeeze`` inflates obstacles by less than the agent radius: the fallback when the
         agent is walled in by its own conservative map (a doorway closed by inflation).
+        ``prior=False`` leaves out the obstacles a remembered model put on the map.
         """
         i0, i1, j0, j1 = crop
-        occ = m.blocked(crop)
+        occ = m.blocked(crop, prior=prior)
         pad = self.agent_radius + (-self.margin if squeeze else self.margin)
         trav = cv2.dilate(occ, disc(math.ceil(pad / m.resolution))) == 0
         # the agent's own cell and a little around it stay free, or it could never leave
@@ -185,11 +186,15 @@ class FMMPlanner:
     def distances(self, m: EpisodeMap, crop, agent: tuple[int, int],
                   targets: np.ndarray) -> np.ndarray:
         """Fast Marching distances (cells) over ``crop`` to ``targets`` (crop-shaped); when
-        the agent cannot reach them, retried once on the squeezed map."""
+        the agent cannot reach them, retried on the squeezed map, then without the
+        remembered obstacles: a memory's coarse walls guide the way but never rule a goal
+        out (a doorway its range profiles caught only at an angle looks closed)."""
         dist = fmm_distance(self.traversable(m, crop, agent), targets)
         ai, aj = agent[0] - crop[0], agent[1] - crop[2]
         if not math.isfinite(dist[ai, aj]):
             dist = fmm_distance(self.traversable(m, crop, agent, squeeze=True), targets)
+        if not math.isfinite(dist[ai, aj]) and m.prior_obstacle is not None:
+            dist = fmm_distance(self.traversable(m, crop, agent, prior=False), targets)
         return dist
 
     # ------------------------------------------------------------------ planning

@@ -68,14 +68,15 @@ def make_policy(name: str, **params) -> GlobalPolicy:
     return POLICIES[name](**params)
 
 
-def frontiers(m: EpisodeMap, min_cells: int = 6) -> tuple[np.ndarray, np.ndarray]:
+def frontiers(m: EpisodeMap, min_cells: int = 6, prior: bool = True
+              ) -> tuple[np.ndarray, np.ndarray]:
     """Frontier clusters: (label image, cell count per label; label 0 is "not a frontier").
 
-    A frontier cell is known (seen by the agent, or by a remembered model mapped in after a
-    relocation), not an obstacle, and touches an unknown cell.
+    A frontier cell is known (seen by the agent, or, with ``prior``, by a remembered model
+    mapped in after a relocation), not an obstacle, and touches an unknown cell.
     """
-    known = m.known()
-    free = (known > 0) & (m.blocked() == 0)
+    known = m.known(prior)
+    free = (known > 0) & (m.blocked(prior=prior) == 0)
     unknown = (known == 0).astype(np.uint8)
     near_unknown = cv2.dilate(unknown, np.ones((3, 3), np.uint8)) > 0
     front = (free & near_unknown).astype(np.uint8)
@@ -116,7 +117,17 @@ class FrontierPolicy:
 
     def select(self, m: EpisodeMap, pose, goal_class: str, planner: FMMPlanner
                ) -> tuple[int, int] | None:
-        lab, sizes = frontiers(m, self.min_cells)
+        """The frontier cell to explore next; when a remembered model's map leaves none,
+        the frontiers of what the agent itself has seen: the memory knows the place, but the
+        goal was not found in it, so look again where this episode has not."""
+        cell = self._select(m, pose, goal_class, planner, prior=True)
+        if cell is None and m.prior_explored is not None:
+            cell = self._select(m, pose, goal_class, planner, prior=False)
+        return cell
+
+    def _select(self, m: EpisodeMap, pose, goal_class: str, planner: FMMPlanner,
+                prior: bool) -> tuple[int, int] | None:
+        lab, sizes = frontiers(m, self.min_cells, prior)
         if not sizes.any():
             return None
         agent = m.to_cell(pose[0], pose[1])
@@ -127,9 +138,10 @@ class FrontierPolicy:
         # distances from the agent (not to it: the same on a symmetric grid)
         src = np.zeros((i1 - i0, j1 - j0), bool)
         src[agent[0] - i0, agent[1] - j0] = True
-        dist_m = fmm_distance(planner.traversable(m, crop, agent), src)
+        dist_m = fmm_distance(planner.traversable(m, crop, agent, prior=prior), src)
         if np.isinf(dist_m[lab[i0:i1, j0:j1] > 0]).all():
-            dist_m = fmm_distance(planner.traversable(m, crop, agent, squeeze=True), src)
+            dist_m = fmm_distance(planner.traversable(m, crop, agent, squeeze=True,
+                                                      prior=prior), src)
         dist_m = dist_m * m.resolution
         sub = lab[i0:i1, j0:j1]
         ok = (sub > 0) & np.isfinite(dist_m) & (dist_m >= self.min_distance)
