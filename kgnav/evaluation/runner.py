@@ -496,7 +496,10 @@ def pre_explore(cfg: EvalConfig, scene: int, extractor_name: str
     pre-explored model of ``hp``/``sp`` (the paper explores 10000 steps; here until nothing is
     left to explore or ``cfg.pre_explore_steps``), and the real instances it saw."""
     env = _env(cfg, scene)
-    agent = _make_agent(cfg, VARIANTS["ans"], env, None, extractor_name)
+    # no look-around: it finds a goal sooner, and the exploration turns all round anyway; with
+    # it, a walk of val_00 ended walled in by its own collision marks after 51 steps
+    agent = _make_agent(replace(cfg, agent=replace(cfg.agent, look_around=False)),
+                        VARIANTS["ans"], env, None, extractor_name)
     # an environment with a writable step limit explores longer than one episode
     saved = getattr(env, "max_steps", None)
     if saved is not None:
