@@ -30,6 +30,7 @@ from kgnav.agent.loop import ObjectNavAgent
 from kgnav.agent.memory import Memory
 from kgnav.agent.segmenter import make_segmenter
 from kgnav.errors import KgnavError
+from kgnav.evaluation.runner import loop_threshold
 from kgnav.merge import merge
 from kgnav.sim import ObjectNavEnv
 
@@ -68,7 +69,7 @@ def _memory_of(env, extractor: str, segmenter: str, episodes: int) -> Memory:
     ext = make_extractor(extractor)
     for e in range(episodes):
         agent = ObjectNavAgent(Camera.from_env(env), make_segmenter(segmenter), ext,
-                               memory=Memory(models, threshold=ext.loop_threshold)
+                               memory=Memory(models, threshold=loop_threshold(ext))
                                if models else None)
         obs, _ = env.reset(seed=100 + e, options={"episode": e})
         agent.reset(env.goal_class, seed=100 + e, scene=env.scene.name, episode=e,
@@ -82,7 +83,7 @@ def _memory_of(env, extractor: str, segmenter: str, episodes: int) -> Memory:
             models[r.model_id] = merge(models[r.model_id], agent.model_, transform=r.transform)
         else:
             models[agent.model_.model_id] = agent.model_
-    return Memory(models, threshold=ext.loop_threshold)
+    return Memory(models, threshold=loop_threshold(ext))
 
 
 def run(extractor: str, width: int, height: int, scenes: int, episodes: int, split: str,

@@ -212,7 +212,13 @@ def _extractor(name: str, weights: str | None = None):
 def _threshold(cfg: EvalConfig, extractor) -> float:
     if cfg.threshold is not None:
         return float(cfg.threshold)
-    # an extractor may name a looser threshold for the loop, where matches are also confirmed
+    return loop_threshold(extractor)
+
+
+def loop_threshold(extractor) -> float:
+    """The relocation threshold the agent loop uses with ``extractor``: its ``loop_threshold``
+    if it names one (looser: the loop also confirms and verifies matches), else its calibrated
+    ``threshold``."""
     return float(getattr(extractor, "loop_threshold",
                          getattr(extractor, "threshold", DEFAULT_THRESHOLD)))
 
