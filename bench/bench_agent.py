@@ -25,12 +25,11 @@ import _one_core  # noqa: F401  (must come before numpy)
 from _table import print_table
 
 from kgnav.agent.camera import Camera
-from kgnav.agent.features import make_extractor
+from kgnav.agent.features import loop_threshold, make_extractor
 from kgnav.agent.loop import ObjectNavAgent
 from kgnav.agent.memory import Memory
 from kgnav.agent.segmenter import make_segmenter
 from kgnav.errors import KgnavError
-from kgnav.evaluation.runner import loop_threshold
 from kgnav.merge import merge
 from kgnav.sim import ObjectNavEnv
 

@@ -65,6 +65,18 @@ def make_extractor(name: str, **params) -> FeatureExtractor:
     return EXTRACTORS[name](**params)
 
 
+#: The paper's relocation threshold, for extractors without a calibrated one.
+DEFAULT_THRESHOLD = 0.3
+
+
+def loop_threshold(extractor) -> float:
+    """The relocation threshold the agent loop uses with ``extractor``: its ``loop_threshold``
+    if it names one (looser: the loop also confirms and verifies matches), else its calibrated
+    ``threshold``, else :data:`DEFAULT_THRESHOLD`."""
+    return float(getattr(extractor, "loop_threshold",
+                         getattr(extractor, "threshold", DEFAULT_THRESHOLD)))
+
+
 def _load_plugins() -> None:
     import importlib
 

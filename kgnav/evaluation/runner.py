@@ -36,7 +36,7 @@ import numpy as np
 
 from kgnav import se2
 from kgnav.agent.camera import Camera
-from kgnav.agent.features import make_extractor
+from kgnav.agent.features import loop_threshold, make_extractor
 from kgnav.agent.loop import AgentConfig, ObjectNavAgent
 from kgnav.agent.memory import Memory
 from kgnav.agent.oracle import OracleAgent
@@ -66,8 +66,6 @@ from kgnav.evidence import forget
 from kgnav.model import AbstractModel
 from kgnav.sim.episodes import SPLITS
 from kgnav.store import ModelStore
-
-DEFAULT_THRESHOLD = 0.3  # the paper's, for extractors without a calibrated one
 
 
 @dataclass(frozen=True)
@@ -213,14 +211,6 @@ def _threshold(cfg: EvalConfig, extractor) -> float:
     if cfg.threshold is not None:
         return float(cfg.threshold)
     return loop_threshold(extractor)
-
-
-def loop_threshold(extractor) -> float:
-    """The relocation threshold the agent loop uses with ``extractor``: its ``loop_threshold``
-    if it names one (looser: the loop also confirms and verifies matches), else its calibrated
-    ``threshold``."""
-    return float(getattr(extractor, "loop_threshold",
-                         getattr(extractor, "threshold", DEFAULT_THRESHOLD)))
 
 
 def _make_agent(cfg: EvalConfig, variant: Variant, env: NavEnv, memory: Memory | None,
