@@ -5,7 +5,9 @@ the more often they recur, and never learns that a place was looked at many time
 goal being there. The evidence of an object is therefore:
 
 * **positive**: ``n_views`` (distinct states that saw it), ``n_episodes`` (distinct episodes
-  among them) and ``score`` (summed detection confidence of its views);
+  among them) and ``score`` (summed detection confidence of its views; ``mean_score``, its
+  mean, is what tells a segmenter's persistent mistakes from real objects, which recur as
+  often but are detected with more confidence);
 * **negative**: ``n_missed``, the states that *should* have seen it and did not: the object's
   position lay in their field of view, within :data:`MISS_RANGE`, and in front of the first
   obstacle of their range profile (so not hidden behind a wall), yet they hold no view of it.
@@ -61,6 +63,12 @@ class Evidence:
     n_missed: int
     score: float
     n_rival: int = 0
+
+    @property
+    def mean_score(self) -> float:
+        """The mean detection confidence of its views (0 without views): a segmenter's
+        persistent mistake recurs, but with lower confidence than what it gets right."""
+        return self.score / self.n_views if self.n_views else 0.0
 
     @property
     def label_share(self) -> float:

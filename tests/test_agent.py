@@ -181,6 +181,30 @@ def test_remembered_walls_guide_the_planner_but_never_rule_a_goal_out():
     assert not math.isfinite(FMMPlanner().plan(m, (0.0, 0.0, 0.0), goal, key="g").distance)
 
 
+def test_with_a_remembered_prior_the_planner_prefers_the_way_the_memory_knows():
+    """Goal 2 m ahead; a remembered model knows an L-shaped free corridor to it (to the left,
+    ahead, back) but not the straight line. Unknown space counted as free (speed 1, the
+    memory-less view) heads straight; counted slower, the plan follows the known corridor.
+    Without a prior the slowdown changes nothing."""
+    m = MapBuilder(Camera(), size=120).reset()
+    goal = np.zeros((120, 120), bool)
+    goal[60, 100] = True  # 2 m along +x; rows are y
+    known = np.zeros((120, 120), np.uint8)
+    known[58:63, 58:63] = 1
+    known[58:82, 58:63] = known[77:82, 58:103] = known[58:82, 98:103] = 1  # left, ahead, back
+    m.prior_explored, m.prior_obstacle = known, np.zeros_like(known)
+    straight = FMMPlanner(unknown_speed=1.0).plan(m, (0.0, 0.0, 0.0), goal, key="g")
+    around = FMMPlanner(unknown_speed=0.3).plan(m, (0.0, 0.0, 0.0), goal, key="g")
+    assert straight.action == "move_forward" and abs(straight.waypoint[1]) < 0.1
+    assert around.action == "turn_left" and around.waypoint[1] > 0.2
+    m.prior_explored = m.prior_obstacle = None
+    plain = FMMPlanner(unknown_speed=0.3).plan(m, (0.0, 0.0, 0.0), goal, key="g")
+    assert plain.action == "move_forward" and plain.distance == pytest.approx(
+        straight.distance, abs=0.06)
+    with pytest.raises(ValueError, match="unknown_speed"):
+        FMMPlanner(unknown_speed=0.0)
+
+
 def test_when_the_memory_leaves_no_frontier_the_agent_looks_again_where_it_has_not():
     """A remembered model covers the whole map, so no frontier is left with it; the policy
     then picks a frontier of what the agent itself has seen, instead of giving up."""

@@ -7,7 +7,12 @@
   is at least ``min_belief`` and whose place gave the goal class in at least
   ``min_label_share`` of its views (the rest: another class at the same spot, a segmenter's
   confusion). A place the memory looked at many times without seeing the goal there is no
-  longer a goal because a segmenter glitched twice.
+  longer a goal because a segmenter glitched twice. A place the segmenter keeps mislabelling,
+  from every side and in every episode, is told apart by the lower confidence of those labels:
+  among the candidates seen from at least ``score_views`` states, one whose views' mean
+  detection confidence falls more than ``score_margin`` below the best candidate's is left
+  out. The comparison is within the goal class, because a segmenter is surer of some
+  classes than of others (of beds than of plants); a class's only candidate always stays.
 
 Either rule skips objects seen from fewer than ``min_views`` states and the ids excluded by
 the caller (objects already looked for and not found).
@@ -19,7 +24,14 @@ import math
 from dataclasses import dataclass, field
 
 from kgnav import query
-from kgnav.evidence import DEFAULT_BELIEF, BeliefModel, ScanTable, belief, object_evidence
+from kgnav.evidence import (
+    DEFAULT_BELIEF,
+    BeliefModel,
+    Evidence,
+    ScanTable,
+    belief,
+    object_evidence,
+)
 from kgnav.model import AbstractModel, ObjectInfo
 
 GOAL_RULES = ("belief", "views")
@@ -36,6 +48,9 @@ class GoalConfig:
     evidence_refresh: int = 8  # recount an object's misses after this many new states
     keep_margin: float = 1.5  # m: the object already headed for stays the goal unless
     # another is closer by more than this (0: always the closest, the paper)
+    score_margin: float = 0.1  # belief rule: leave out a candidate whose mean detection
+    # confidence is this far below the best candidate's (math.inf: off)
+    score_views: int = 3  # ... among those seen from this many states
 
     def __post_init__(self):
         if self.rule not in GOAL_RULES:
@@ -63,10 +78,21 @@ def choose_goal(model: AbstractModel, cls: str, near, config: GoalConfig,
         return None
     ev = object_evidence(model, [o.id for o in cands], table=table, cache=cache,
                          stale=config.evidence_refresh)
-    trusted = [o for o in cands if belief(ev[o.id], config.belief) >= config.min_belief
-               and ev[o.id].label_share >= config.min_label_share]
+    trusted = [o for o in cands if trusts(ev[o.id], config)]
+    judged = [ev[o.id].mean_score for o in trusted if ev[o.id].n_views >= config.score_views]
+    if judged and math.isfinite(config.score_margin):
+        floor = max(judged) - config.score_margin
+        trusted = [o for o in trusted if ev[o.id].n_views < config.score_views
+                   or ev[o.id].mean_score >= floor]
     if not trusted:
         return None
     x, y = float(near[0]), float(near[1])
     return min(trusted, key=lambda o: (math.hypot(o.position[0] - x, o.position[1] - y)
                                        - (config.keep_margin if o.id == current else 0.0), o.id))
+
+
+def trusts(ev: Evidence, config: GoalConfig) -> bool:
+    """Whether the belief rule would head for an object with evidence ``ev`` (on its own:
+    the confidence comparison with other candidates is :func:`choose_goal`'s)."""
+    return (belief(ev, config.belief) >= config.min_belief
+            and ev.label_share >= config.min_label_share)

@@ -28,7 +28,7 @@ import numpy as np
 from kgnav import se2
 from kgnav.agent.camera import Camera
 from kgnav.agent.features import FeatureExtractor
-from kgnav.agent.goals import GoalConfig, choose_goal
+from kgnav.agent.goals import GoalConfig, choose_goal, trusts
 from kgnav.agent.mapping import EpisodeMap, MapBuilder
 from kgnav.agent.memory import Memory
 from kgnav.agent.planner import FMMPlanner, Plan
@@ -69,6 +69,8 @@ class AgentConfig:
     goals: GoalConfig = field(default_factory=GoalConfig)
     relocation: RelocationConfig = field(default_factory=RelocationConfig)
     seed_map: bool = True  # after a relocation, plan with what the stored model saw
+    unknown_speed: float = 0.5  # ... and count space neither it nor the agent saw this much
+    # slower than known free space (1: no preference for the way the memory knows)
     confirm_distance: float = 2.5  # see an object this close before stopping at it (0: off)
     confirm_steps: int = 8  # turns spent looking for it on arrival before giving it up
     map_size: int = 480  # starting side in cells; the map grows
@@ -96,7 +98,7 @@ class AgentConfig:
                                                landmark_radius=0.0, bridge_interval=0,
                                                unique=False, merge_check=False,
                                                late_match=False),
-                   seed_map=False, confirm_distance=0.0, soft_search="area",
+                   seed_map=False, unknown_speed=1.0, confirm_distance=0.0, soft_search="area",
                    live_override="always", look_around=False)
         return replace(base, **overrides)
 
@@ -183,10 +185,11 @@ class ObjectNavAgent:
         # a heading within half a turn of the goal cannot be improved by turning
         self._aim_tolerance = max(20.0, self.actions.turn_deg / 2 + 1.0)
         self.policy = policy or FrontierPolicy()
-        self.planner = planner or FMMPlanner(agent_radius=agent_radius,
-                                             turn_tolerance_deg=self._aim_tolerance)
         self.memory = memory
         self.config = config or AgentConfig()
+        self.planner = planner or FMMPlanner(agent_radius=agent_radius,
+                                             turn_tolerance_deg=self._aim_tolerance,
+                                             unknown_speed=self.config.unknown_speed)
         self.map_builder = MapBuilder(camera, self.config.map_size, self.config.map_resolution,
                                       classes=self.classes)
         self.state_creator = StateCreator(camera, obstacle_band=self.map_builder.obstacle_band)
@@ -480,8 +483,7 @@ class ObjectNavAgent:
         if goals.rule != "belief":
             return False
         ev = object_evidence(self.current_, [object_id], table=self._scans)[object_id]
-        return (belief(ev, goals.belief) >= goals.min_belief
-                and ev.label_share >= goals.min_label_share)
+        return trusts(ev, goals)
 
     def _overrides(self, live: Target, remembered: Target) -> bool:
         """Whether a goal in view replaces the remembered one heading for: always (the

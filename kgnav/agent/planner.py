@@ -3,7 +3,10 @@
 Unexplored cells count as navigable (the paper: this is what lets the agent discover new
 space); obstacles, plus cells where the agent bumped into something, are inflated by the agent
 radius. Distances to the goal cells are computed by Fast Marching on a crop of the map around
-what is explored, the agent and the goal, and reused for a few steps unless the goal changes,
+what is explored, the agent and the goal (with a remembered model's geometry on the map,
+``unknown_speed`` < 1 makes cells neither the agent nor the memory has seen slower, so the
+plan prefers the way the memory knows to a shortcut through space that may hold a wall), and
+reused for a few steps unless the goal changes,
 the agent collides, leaves the crop, or the path ahead becomes blocked. The action turns the
 agent toward a short-term goal a few cells down the distance field, or moves it forward.
 
@@ -37,14 +40,20 @@ def disc(radius_cells: int) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
 
 
-def fmm_distance(traversable: np.ndarray, targets: np.ndarray, clearance: float = 0.0
-                 ) -> np.ndarray:
+def fmm_distance(traversable: np.ndarray, targets: np.ndarray, clearance: float = 0.0,
+                 speed: np.ndarray | None = None) -> np.ndarray:
     """Geodesic distance in cells from every traversable cell to the nearest target cell.
 
     Target cells read 0 and are always passable; cells that are not traversable or cannot reach
     a target read ``inf``. With ``clearance`` (cells) > 0 the result is a travel time in which
     cells nearer than that to a non-traversable cell are slower (down to a quarter speed), so
-    paths keep off walls and corners instead of grazing them.
+    paths keep off walls and corners instead of grazing them. ``speed`` (same shape, in (0, 1])
+    makes it a travel time with that speed per cell (times the clearance slowdown).
+
+    >>> trav = np.ones((1, 5), bool); goal = np.zeros((1, 5), bool); goal[0, 0] = True
+    >>> half = np.full((1, 5), 0.5)
+    >>> [round(float(fmm_distance(trav, goal, speed=v)[0, 4]), 2) for v in (None, half)]
+    [4.0, 7.5]
     """
     out = np.full(traversable.shape, np.inf)
     if not targets.any():
@@ -54,7 +63,9 @@ def fmm_distance(traversable: np.ndarray, targets: np.ndarray, clearance: float 
     try:
         if clearance > 0:
             room = cv2.distanceTransform(free.astype(np.uint8), cv2.DIST_L2, 3)
-            speed = np.clip(room / clearance, 0.25, 1.0)
+            slow = np.clip(room / clearance, 0.25, 1.0)
+            speed = slow if speed is None else slow * speed
+        if speed is not None:
             d = skfmm.travel_time(np.ma.MaskedArray(phi, ~free), speed, dx=1.0)
         else:
             d = skfmm.distance(np.ma.MaskedArray(phi, ~free), dx=1.0)
@@ -112,7 +123,9 @@ class FMMPlanner:
 
     ``key`` identifies the goal (a new key forces replanning); ``replan_every`` bounds how many
     steps a distance field is reused; ``lookahead`` is how many cells down the field the
-    short-term goal lies; ``turn_tolerance_deg`` is the heading error tolerated before turning.
+    short-term goal lies; ``turn_tolerance_deg`` is the heading error tolerated before turning;
+    ``unknown_speed`` (in (0, 1]) is how fast unseen cells count once the map holds a
+    remembered prior (1: as fast as known free space, the memory-less planner's view).
     """
 
     def __init__(
@@ -123,13 +136,17 @@ class FMMPlanner:
         turn_tolerance_deg: float = 20.0,
         replan_every: int = 10,
         crop_margin: float = 2.0,
+        unknown_speed: float = 1.0,
     ):
+        if not 0 < unknown_speed <= 1:
+            raise ValueError(f"unknown_speed must be in (0, 1], got {unknown_speed}")
         self.agent_radius = float(agent_radius)
         self.margin = float(margin)
         self.lookahead = int(lookahead)
         self.turn_tolerance = math.radians(turn_tolerance_deg)
         self.replan_every = int(replan_every)
         self.crop_margin = float(crop_margin)
+        self.unknown_speed = float(unknown_speed)
         self.reset()
 
     def reset(self) -> None:
@@ -189,13 +206,24 @@ class FMMPlanner:
         the agent cannot reach them, retried on the squeezed map, then without the
         remembered obstacles: a memory's coarse walls guide the way but never rule a goal
         out (a doorway its range profiles caught only at an angle looks closed)."""
-        dist = fmm_distance(self.traversable(m, crop, agent), targets)
+        speed = self._speed(m, crop)
+        dist = fmm_distance(self.traversable(m, crop, agent), targets, speed=speed)
         ai, aj = agent[0] - crop[0], agent[1] - crop[2]
         if not math.isfinite(dist[ai, aj]):
-            dist = fmm_distance(self.traversable(m, crop, agent, squeeze=True), targets)
+            dist = fmm_distance(self.traversable(m, crop, agent, squeeze=True), targets,
+                                speed=speed)
         if not math.isfinite(dist[ai, aj]) and m.prior_obstacle is not None:
-            dist = fmm_distance(self.traversable(m, crop, agent, prior=False), targets)
+            dist = fmm_distance(self.traversable(m, crop, agent, prior=False), targets,
+                                speed=speed)
         return dist
+
+    def _speed(self, m: EpisodeMap, crop) -> np.ndarray | None:
+        """Per-cell speed over ``crop``: None (uniform) without a remembered prior."""
+        if self.unknown_speed >= 1.0 or m.prior_explored is None:
+            return None
+        i0, i1, j0, j1 = crop
+        known = m.known()[i0:i1, j0:j1] > 0
+        return np.where(known, 1.0, self.unknown_speed)
 
     # ------------------------------------------------------------------ planning
     def plan(self, m: EpisodeMap, pose, goal: np.ndarray, key=None) -> Plan:
