@@ -203,6 +203,8 @@ def test_with_a_remembered_prior_the_planner_prefers_the_way_the_memory_knows():
         straight.distance, abs=0.06)
     with pytest.raises(ValueError, match="unknown_speed"):
         FMMPlanner(unknown_speed=0.0)
+    with pytest.raises(ValueError, match="unknown_speed"):
+        AgentConfig(unknown_speed=1.5)
 
 
 def test_when_the_memory_leaves_no_frontier_the_agent_looks_again_where_it_has_not():

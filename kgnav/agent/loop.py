@@ -84,6 +84,8 @@ class AgentConfig:
                              f"got {self.live_override!r}")
         if self.strategy not in STRATEGIES:
             raise ValueError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
+        if not 0 < self.unknown_speed <= 1:
+            raise ValueError(f"unknown_speed must be in (0, 1], got {self.unknown_speed}")
         if self.soft_search not in SOFT_SEARCHES:
             raise ValueError(f"soft_search must be one of {SOFT_SEARCHES}, "
                              f"got {self.soft_search!r}")
