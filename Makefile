@@ -7,7 +7,8 @@ STAMP := $(VENV)/.kgnav-installed
 
 # The main job: the with-memory ObjectNav benchmark, small by default (2 val houses x 15
 # episodes, every variant, 2 processes: 8 minutes on 2 idle cores, about 20 on busy ones).
-# Few houses and many episodes each give the memory something to reuse. `make demo FULL=1`: the whole val split (100 episodes a house).
+# Few houses and many episodes each give the memory something to reuse.
+# `make demo FULL=1`: the whole val split (100 episodes a house).
 VARIANTS ?= ans,hp,sp,si,sem+si,oracle
 SCENES ?= 2
 EPISODES ?= 15
