@@ -104,12 +104,13 @@ class EpisodeMap:
             occ = occ | self.prior_obstacle[i0:i1, j0:j1]
         return occ
 
-    def known(self, prior: bool = True) -> np.ndarray:
+    def known(self, prior: bool = True, crop=None) -> np.ndarray:
         """uint8 cells seen by the agent or (with ``prior``), before it, by a remembered
-        model."""
+        model (over ``crop`` = (i0, i1, j0, j1))."""
+        i0, i1, j0, j1 = crop if crop is not None else (0, self.shape[0], 0, self.shape[1])
         if not prior or self.prior_explored is None:
-            return self.explored
-        return self.explored | self.prior_explored
+            return self.explored[i0:i1, j0:j1]
+        return self.explored[i0:i1, j0:j1] | self.prior_explored[i0:i1, j0:j1]
 
     def class_mask(self, cls: str, min_count: int = 1) -> np.ndarray:
         """Cells with at least ``min_count`` evidence of class ``cls``."""

@@ -221,9 +221,7 @@ class FMMPlanner:
         """Per-cell speed over ``crop``: None (uniform) without a remembered prior."""
         if self.unknown_speed >= 1.0 or m.prior_explored is None:
             return None
-        i0, i1, j0, j1 = crop
-        known = m.known()[i0:i1, j0:j1] > 0
-        return np.where(known, 1.0, self.unknown_speed)
+        return np.where(m.known(crop=crop) > 0, 1.0, self.unknown_speed)
 
     # ------------------------------------------------------------------ planning
     def plan(self, m: EpisodeMap, pose, goal: np.ndarray, key=None) -> Plan:
