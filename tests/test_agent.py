@@ -164,6 +164,48 @@ def test_frontier_policy_picks_frontiers_and_gives_up_when_closed():
     assert pol.select(m, (0.0, 0.0, 0.0), "chair", FMMPlanner()) is None
 
 
+def test_an_agent_walled_in_by_its_own_inflated_marks_still_finds_a_way_out():
+    """Between a wall and furniture 15 cm either side, with a bump mark ahead and one behind,
+    inflation (even squeezed) seals the agent's patch: the policy once chose nothing, and the
+    agent turned in place until the step limit. Planning on the bare obstacles lets it out."""
+    m = MapBuilder(Camera(), size=120).reset()
+    m.explored[30:90, 30:90] = 1
+    m.obstacle[57, 40:80] = m.obstacle[63, 40:80] = 1
+    m.bumped[60, 57] = m.bumped[60, 63] = 1
+    pose = (*m.to_xy(60, 60), 0.0)
+    planner, policy = FMMPlanner(), FrontierPolicy()
+    for kw in ({}, {"squeeze": True}):
+        trav = planner.traversable(m, (30, 90, 30, 90), (60, 60), **kw)
+        assert not trav[30, 25] and not trav[30, 35]  # sealed either way
+    cell = policy.select(m, pose, "chair", planner)
+    assert cell is not None
+    goal = np.zeros(m.shape, bool)
+    goal[cell] = True
+    plan = planner.plan(m, pose, goal, key="out")
+    assert math.isfinite(plan.distance) and plan.distance > 0.5
+    m.bumped[58:63, 57] = 1  # marks across the whole corridor: closed for good
+    m.bumped[58:63, 63] = 1
+    assert policy.select(m, pose, "chair", FMMPlanner()) is None
+
+
+def test_a_goal_behind_a_gap_the_agent_does_not_fit_stays_out_of_reach():
+    """Not walled in, only facing a goal behind a 10 cm gap: the bare map would lead the agent
+    to push at the gap, so the planner says unreachable (and the agent picks another goal)."""
+    m = MapBuilder(Camera(), size=120).reset()
+    m.explored[:] = 1
+    m.obstacle[40:80, 80] = m.obstacle[40:80, 100] = 1
+    m.obstacle[40, 80:101] = m.obstacle[80, 80:101] = 1
+    m.obstacle[59:61, 80] = 0  # a 10 cm gap
+    goal = np.zeros(m.shape, bool)
+    goal[60, 90] = True
+    planner = FMMPlanner()
+    pose = (*m.to_xy(60, 40), 0.0)
+    assert not planner.sealed(m, (20, 100, 20, 110), (60, 40))
+    assert not math.isfinite(planner.plan(m, pose, goal, key="boxed").distance)
+    bare = planner.traversable(m, (0, 120, 0, 120), (60, 40), bare=True)
+    assert math.isfinite(fmm_distance(bare, goal)[60, 40])  # the bare map would go in
+
+
 def test_remembered_walls_guide_the_planner_but_never_rule_a_goal_out():
     """A goal boxed in by walls only a remembered model saw (a doorway its coarse range
     profiles caught as closed) is still planned for; boxed in by walls the agent saw itself
@@ -391,3 +433,26 @@ def test_a_goal_in_view_replaces_a_remembered_one_only_if_believed_as_much(env):
         assert agent._overrides(Target("live", (4.2, 0.1), strong), remembered)
     with pytest.raises(ValueError, match="live_override"):
         AgentConfig(live_override="sometimes")
+
+
+@given(seed=st.integers(0, 10_000), density=st.floats(0.0, 0.05),
+       at=st.tuples(st.integers(0, 59), st.integers(0, 59)))
+@settings(max_examples=60, deadline=None)
+def test_the_path_check_on_a_window_agrees_with_inflating_the_whole_crop(seed, density, at):
+    """The planner checks the path ahead every step on a window around it; it must say what
+    inflating the whole planning window would say (or it would replan differently)."""
+    rng = np.random.default_rng(seed)
+    m = MapBuilder(Camera(), size=80).reset()
+    m.obstacle[:] = rng.random(m.shape) < density
+    m.bumped[:] = rng.random(m.shape) < density / 4
+    crop = (10, 70, 10, 70)
+    agent = (10 + at[0], 10 + at[1])
+    planner = FMMPlanner()
+    trav = planner.traversable(m, crop, agent)
+    for _ in range(5):
+        n = int(rng.integers(1, 9))
+        steps = rng.integers(-1, 2, size=(n, 2)).cumsum(axis=0)
+        path = [(int(np.clip(agent[0] + di, 10, 69)), int(np.clip(agent[1] + dj, 10, 69)))
+                for di, dj in steps]
+        expected = any(not trav[i - 10, j - 10] for i, j in path)
+        assert planner.path_blocked(m, crop, agent, path) == expected

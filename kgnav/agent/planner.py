@@ -184,28 +184,50 @@ class FMMPlanner:
         return max(i0, 0), min(i1, H), max(j0, 0), min(j1, W)
 
     def traversable(self, m: EpisodeMap, crop, agent: tuple[int, int], *,
-                    squeeze: bool = False, prior: bool = True) -> np.ndarray:
+                    squeeze: bool = False, prior: bool = True, bare: bool = False
+                    ) -> np.ndarray:
         """Cells of ``crop`` the agent's centre may occupy (unexplored counts as free).
 
         ``squeeze`` inflates obstacles by less than the agent radius: the fallback when the
         agent is walled in by its own conservative map (a doorway closed by inflation).
-        ``prior=False`` leaves out the obstacles a remembered model put on the map.
+        ``bare`` does not inflate them at all: the last resort when even that leaves the
+        agent no way out (its bump marks and a wall seal the patch it stands on; bumping
+        on the way marks what really blocks). ``prior=False`` leaves out the obstacles a
+        remembered model put on the map.
         """
         i0, i1, j0, j1 = crop
         occ = m.blocked(crop, prior=prior)
-        pad = self.agent_radius + (-self.margin if squeeze else self.margin)
+        pad = 0.0 if bare else self.agent_radius + (-self.margin if squeeze else self.margin)
         trav = cv2.dilate(occ, disc(math.ceil(pad / m.resolution))) == 0
         # the agent's own cell and a little around it stay free, or it could never leave
         ai, aj = agent[0] - i0, agent[1] - j0
         trav[max(ai - 2, 0):ai + 3, max(aj - 2, 0):aj + 3] = True
         return trav
 
+    def path_blocked(self, m: EpisodeMap, crop, agent: tuple[int, int],
+                     path: list[tuple[int, int]]) -> bool:
+        """Whether a cell of ``path`` (map cells inside ``crop``) is one :meth:`traversable`
+        over ``crop`` would rule out. The same answer, from the obstacles within an
+        inflation radius of the path only: checked every step, it must not inflate the
+        whole window."""
+        if not path:
+            return False
+        i0, i1, j0, j1 = crop
+        k = math.ceil((self.agent_radius + self.margin) / m.resolution)
+        rows, cols = [p[0] for p in path], [p[1] for p in path]
+        w0, w2 = max(min(rows) - k, i0), max(min(cols) - k, j0)
+        win = (w0, min(max(rows) + k + 1, i1), w2, min(max(cols) + k + 1, j1))
+        trav = cv2.dilate(m.blocked(win), disc(k)) == 0
+        return any(not trav[i - w0, j - w2] for i, j in path
+                   if max(abs(i - agent[0]), abs(j - agent[1])) > 2)  # the agent's patch
+
     def distances(self, m: EpisodeMap, crop, agent: tuple[int, int],
                   targets: np.ndarray) -> np.ndarray:
         """Fast Marching distances (cells) over ``crop`` to ``targets`` (crop-shaped); when
         the agent cannot reach them, retried on the squeezed map, then without the
         remembered obstacles: a memory's coarse walls guide the way but never rule a goal
-        out (a doorway its range profiles caught only at an angle looks closed)."""
+        out (a doorway its range profiles caught only at an angle looks closed); last, when
+        the agent is :meth:`sealed` in, with obstacles not inflated (``bare``)."""
         speed = self._speed(m, crop)
         dist = fmm_distance(self.traversable(m, crop, agent), targets, speed=speed)
         ai, aj = agent[0] - crop[0], agent[1] - crop[2]
@@ -215,7 +237,21 @@ class FMMPlanner:
         if not math.isfinite(dist[ai, aj]) and m.prior_obstacle is not None:
             dist = fmm_distance(self.traversable(m, crop, agent, prior=False), targets,
                                 speed=speed)
+        if not math.isfinite(dist[ai, aj]) and self.sealed(m, crop, agent, prior=False):
+            dist = fmm_distance(self.traversable(m, crop, agent, prior=False, bare=True),
+                                targets, speed=speed)
         return dist
+
+    def sealed(self, m: EpisodeMap, crop, agent: tuple[int, int], *, prior: bool = True,
+               room: float = 0.5) -> bool:
+        """Whether even the squeezed map leaves the agent less than ``room`` square metres
+        to move in: walled in by its own marks, not facing a goal it cannot reach. Only then
+        is planning on the bare obstacles worth its risk (a goal merely out of reach would
+        otherwise stay a goal, and the agent would push at a gap it does not fit)."""
+        trav = self.traversable(m, crop, agent, squeeze=True, prior=prior).astype(np.uint8)
+        _, lab = cv2.connectedComponents(trav, connectivity=4)
+        here = lab[agent[0] - crop[0], agent[1] - crop[2]]
+        return int((lab == here).sum()) * m.resolution ** 2 < room
 
     def _speed(self, m: EpisodeMap, crop) -> np.ndarray | None:
         """Per-cell speed over ``crop``: None (uniform) without a remembered prior."""
@@ -244,9 +280,8 @@ class FMMPlanner:
             # the old field may not cover where the agent stands now (its free patch moved)
             fresh = not math.isfinite(c["dist"][agent[0] - i0, agent[1] - j0])
         if not fresh:
-            path = self._descend(c["dist"], agent, c["crop"])
-            trav = self.traversable(m, c["crop"], agent)
-            fresh = any(not trav[i - i0, j - j0] for i, j in path)
+            fresh = self.path_blocked(m, c["crop"], agent,
+                                      self._descend(c["dist"], agent, c["crop"]))
         if fresh:
             crop = self.window(m, agent, goal)
             i0, i1, j0, j1 = crop

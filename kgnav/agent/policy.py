@@ -139,9 +139,12 @@ class FrontierPolicy:
         src = np.zeros((i1 - i0, j1 - j0), bool)
         src[agent[0] - i0, agent[1] - j0] = True
         dist_m = fmm_distance(planner.traversable(m, crop, agent, prior=prior), src)
-        if np.isinf(dist_m[lab[i0:i1, j0:j1] > 0]).all():
-            dist_m = fmm_distance(planner.traversable(m, crop, agent, squeeze=True,
-                                                      prior=prior), src)
+        for fallback in ({"squeeze": True}, {"bare": True}):  # walled in by its own map
+            if not np.isinf(dist_m[lab[i0:i1, j0:j1] > 0]).all() or (
+                    "bare" in fallback and not planner.sealed(m, crop, agent, prior=prior)):
+                break
+            dist_m = fmm_distance(planner.traversable(m, crop, agent, prior=prior,
+                                                      **fallback), src)
         dist_m = dist_m * m.resolution
         sub = lab[i0:i1, j0:j1]
         ok = (sub > 0) & np.isfinite(dist_m) & (dist_m >= self.min_distance)
