@@ -189,10 +189,11 @@ def test_an_agent_walled_in_by_its_own_inflated_marks_still_finds_a_way_out():
 
 
 def test_a_goal_behind_a_gap_the_agent_does_not_fit_stays_out_of_reach():
-    """Not walled in, only facing a goal behind a 10 cm gap: the bare map would lead the agent
-    to push at the gap, so the planner says unreachable (and the agent picks another goal)."""
+    """Not walled in (space left to explore), only facing a goal behind a 10 cm gap: the bare
+    map would lead the agent to push at the gap, so the planner says unreachable (and the
+    agent picks another goal)."""
     m = MapBuilder(Camera(), size=120).reset()
-    m.explored[:] = 1
+    m.explored[20:100, 20:110] = 1  # unexplored space beyond: the agent is not walled in
     m.obstacle[40:80, 80] = m.obstacle[40:80, 100] = 1
     m.obstacle[40, 80:101] = m.obstacle[80, 80:101] = 1
     m.obstacle[59:61, 80] = 0  # a 10 cm gap
@@ -200,7 +201,7 @@ def test_a_goal_behind_a_gap_the_agent_does_not_fit_stays_out_of_reach():
     goal[60, 90] = True
     planner = FMMPlanner()
     pose = (*m.to_xy(60, 40), 0.0)
-    assert not planner.sealed(m, (20, 100, 20, 110), (60, 40))
+    assert not planner.sealed(m, (10, 110, 10, 118), (60, 40))
     assert not math.isfinite(planner.plan(m, pose, goal, key="boxed").distance)
     bare = planner.traversable(m, (0, 120, 0, 120), (60, 40), bare=True)
     assert math.isfinite(fmm_distance(bare, goal)[60, 40])  # the bare map would go in

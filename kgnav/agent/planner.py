@@ -242,16 +242,19 @@ class FMMPlanner:
                                 targets, speed=speed)
         return dist
 
-    def sealed(self, m: EpisodeMap, crop, agent: tuple[int, int], *, prior: bool = True,
-               room: float = 0.5) -> bool:
-        """Whether even the squeezed map leaves the agent less than ``room`` square metres
-        to move in: walled in by its own marks, not facing a goal it cannot reach. Only then
-        is planning on the bare obstacles worth its risk (a goal merely out of reach would
-        otherwise stay a goal, and the agent would push at a gap it does not fit)."""
+    def sealed(self, m: EpisodeMap, crop, agent: tuple[int, int], *, prior: bool = True
+               ) -> bool:
+        """Whether the squeezed map walls the agent in: the cells it can reach in ``crop``
+        hold nothing unexplored and do not run off the window, so no frontier and no way
+        on. Only then is planning on the bare obstacles worth its risk (a goal merely out of
+        reach, with space left to explore, would otherwise stay a goal, and the agent would
+        push at a gap it does not fit)."""
         trav = self.traversable(m, crop, agent, squeeze=True, prior=prior).astype(np.uint8)
         _, lab = cv2.connectedComponents(trav, connectivity=4)
-        here = lab[agent[0] - crop[0], agent[1] - crop[2]]
-        return int((lab == here).sum()) * m.resolution ** 2 < room
+        mine = lab == lab[agent[0] - crop[0], agent[1] - crop[2]]
+        if mine[0].any() or mine[-1].any() or mine[:, 0].any() or mine[:, -1].any():
+            return False
+        return not (mine & (m.known(prior, crop=crop) == 0)).any()
 
     def _speed(self, m: EpisodeMap, crop) -> np.ndarray | None:
         """Per-cell speed over ``crop``: None (uniform) without a remembered prior."""
