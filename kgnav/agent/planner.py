@@ -197,12 +197,20 @@ class FMMPlanner:
         """
         i0, i1, j0, j1 = crop
         occ = m.blocked(crop, prior=prior)
-        pad = 0.0 if bare else self.agent_radius + (-self.margin if squeeze else self.margin)
-        trav = cv2.dilate(occ, disc(math.ceil(pad / m.resolution))) == 0
+        trav = cv2.dilate(occ, disc(self._inflation(m, squeeze=squeeze, bare=bare))) == 0
         # the agent's own cell and a little around it stay free, or it could never leave
-        ai, aj = agent[0] - i0, agent[1] - j0
-        trav[max(ai - 2, 0):ai + 3, max(aj - 2, 0):aj + 3] = True
+        ai, aj, r = agent[0] - i0, agent[1] - j0, self._PATCH
+        trav[max(ai - r, 0):ai + r + 1, max(aj - r, 0):aj + r + 1] = True
         return trav
+
+    _PATCH = 2  # cells each side of the agent's own that always count as free
+
+    def _inflation(self, m: EpisodeMap, *, squeeze: bool = False, bare: bool = False) -> int:
+        """How many cells obstacles grow by for the agent's centre (see :meth:`traversable`)."""
+        if bare:
+            return 0
+        return math.ceil((self.agent_radius + (-self.margin if squeeze else self.margin))
+                         / m.resolution)
 
     def path_blocked(self, m: EpisodeMap, crop, agent: tuple[int, int],
                      path: list[tuple[int, int]]) -> bool:
@@ -213,13 +221,13 @@ class FMMPlanner:
         if not path:
             return False
         i0, i1, j0, j1 = crop
-        k = math.ceil((self.agent_radius + self.margin) / m.resolution)
+        k = self._inflation(m)
         rows, cols = [p[0] for p in path], [p[1] for p in path]
         w0, w2 = max(min(rows) - k, i0), max(min(cols) - k, j0)
         win = (w0, min(max(rows) + k + 1, i1), w2, min(max(cols) + k + 1, j1))
         trav = cv2.dilate(m.blocked(win), disc(k)) == 0
         return any(not trav[i - w0, j - w2] for i, j in path
-                   if max(abs(i - agent[0]), abs(j - agent[1])) > 2)  # the agent's patch
+                   if max(abs(i - agent[0]), abs(j - agent[1])) > self._PATCH)
 
     def distances(self, m: EpisodeMap, crop, agent: tuple[int, int],
                   targets: np.ndarray) -> np.ndarray:

@@ -138,18 +138,20 @@ class FrontierPolicy:
         # distances from the agent (not to it: the same on a symmetric grid)
         src = np.zeros((i1 - i0, j1 - j0), bool)
         src[agent[0] - i0, agent[1] - j0] = True
-        dist_m = fmm_distance(planner.traversable(m, crop, agent, prior=prior), src)
-        for fallback in ({"squeeze": True}, {"bare": True}):  # walled in by its own map
-            if not np.isinf(dist_m[lab[i0:i1, j0:j1] > 0]).all() or (
-                    "bare" in fallback and not planner.sealed(m, crop, agent, prior=prior)):
-                break
-            dist_m = fmm_distance(planner.traversable(m, crop, agent, prior=prior,
-                                                      **fallback), src)
-        dist_m = dist_m * m.resolution
         sub = lab[i0:i1, j0:j1]
-        ok = (sub > 0) & np.isfinite(dist_m) & (dist_m >= self.min_distance)
+        front = sub > 0
+        dist_m = fmm_distance(planner.traversable(m, crop, agent, prior=prior), src)
+        # walled in by its own map: squeeze, and when even that seals it, the bare obstacles
+        if np.isinf(dist_m[front]).all():
+            dist_m = fmm_distance(planner.traversable(m, crop, agent, squeeze=True,
+                                                      prior=prior), src)
+        if np.isinf(dist_m[front]).all() and planner.sealed(m, crop, agent, prior=prior):
+            dist_m = fmm_distance(planner.traversable(m, crop, agent, bare=True,
+                                                      prior=prior), src)
+        dist_m = dist_m * m.resolution
+        ok = front & np.isfinite(dist_m) & (dist_m >= self.min_distance)
         if not ok.any():
-            ok = (sub > 0) & np.isfinite(dist_m)
+            ok = front & np.isfinite(dist_m)
             if not ok.any():
                 return None
         cost = np.where(ok, self._cost(m, goal_class, sub, sizes, dist_m, crop), np.inf)
