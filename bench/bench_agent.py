@@ -28,9 +28,9 @@ from kgnav.agent.camera import Camera
 from kgnav.agent.features import loop_threshold, make_extractor
 from kgnav.agent.loop import ObjectNavAgent
 from kgnav.agent.memory import Memory
-from kgnav.agent.segmenter import make_segmenter
+from kgnav.agent.segmentation import make_segmenter
 from kgnav.errors import KgnavError
-from kgnav.merge import merge
+from kgnav.memory.merge import merge
 from kgnav.sim import ObjectNavEnv
 
 TIMES: dict[str, float] = defaultdict(float)

@@ -19,7 +19,7 @@ import torch
 from _table import print_table
 
 from kgnav.agent.features import make_extractor
-from kgnav.encoder.views import ViewSampler
+from kgnav.nets.encoder.views import ViewSampler
 from kgnav.sim.episodes import load_scene_of
 
 

@@ -35,15 +35,15 @@ from pathlib import Path
 
 from _table import print_table
 
-from kgnav.evaluation.engines import LocalEngine, RayEngine
-from kgnav.evaluation.runner import (
+from kgnav.benchmark.engines import LocalEngine, RayEngine
+from kgnav.benchmark.runner import (
     EvalConfig,
     _worker_init,
     resolve_extractor,
     run_eval,
     run_variant,
 )
-from kgnav.evaluation.variants import VARIANTS
+from kgnav.benchmark.variants import VARIANTS
 
 RUNS = [("local", 1), ("local", 2), ("ray", 2)]
 
@@ -114,7 +114,7 @@ def overhead(args, context_bytes: int = 0) -> None:
     size = f"{context_bytes / 1e6:.1f} MB array"
     if args.memory_store:  # a real memory (``--part memory --keep DIR`` writes one)
         from kgnav.agent.memory import Memory
-        from kgnav.store import ModelStore
+        from kgnav.memory.store import ModelStore
 
         models, problems = ModelStore(Path(args.memory_store) / "memory" / "si").load_all()
         assert models and not problems, problems

@@ -28,15 +28,17 @@ import time
 import _one_core  # noqa: F401  (must come before numpy)
 from _table import print_table
 
-from kgnav import graphml_read
-from kgnav.graphml import read_model, write_model
-from kgnav.synthetic import SyntheticWorld
+from kgnav.memory.graphml import read as graphml_read
+from kgnav.memory.graphml import write_model
+from kgnav.memory.model import AbstractModel
+from kgnav.memory.synthetic import SyntheticWorld
 
 # run in a fresh process: load the file with one reader, print memory before and at the peak
 _PEAK = """
 import json, sys, time
 sys.path[:0] = {path!r}
-from kgnav import graphml_read as gr
+from kgnav import AbstractModel
+from kgnav.memory.graphml import read as gr
 def vm(key):
     for line in open("/proc/self/status"):
         if line.startswith(key):
@@ -44,9 +46,9 @@ def vm(key):
 before = vm("VmRSS:")
 t = time.perf_counter()
 if {xml!r}:
-    m = gr._XmlReader({file!r}, 1 << 40).read()
+    m = AbstractModel.from_graph(gr._XmlReader({file!r}, 1 << 40).read())
 else:
-    m = gr.read_model({file!r}, max_bytes=1 << 40)
+    m = AbstractModel.load({file!r}, max_bytes=1 << 40)
 print(json.dumps(dict(before=before, peak=vm("VmHWM:"), s=time.perf_counter() - t,
                       states=m.n_states)))
 """
@@ -71,13 +73,13 @@ def speed(args) -> None:
                 saves.append(time.perf_counter() - t)
                 save_cpu.append(time.process_time() - c)
                 t, c = time.perf_counter(), time.process_time()
-                back = read_model(path)
+                back = AbstractModel.load(path)
                 loads.append(time.perf_counter() - t)
                 load_cpu.append(time.process_time() - c)
                 t = time.perf_counter()
                 back_xml = graphml_read._XmlReader(path, 1 << 40).read()
                 xml_loads.append(time.perf_counter() - t)
-            assert back == model and back_xml == model
+            assert back == model and AbstractModel.from_graph(back_xml) == model
             size = os.path.getsize(path) / 1e6
         rows.append([model.n_states, dim, views, model.n_transitions, round(size, 1),
                      min(saves), min(save_cpu), min(loads), min(load_cpu), min(xml_loads),

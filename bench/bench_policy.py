@@ -7,9 +7,9 @@ per decision on one core, and the ObjectNav comparison of two ``kgnav eval`` run
 
 Pins the process to one core and single-threaded BLAS/torch before numpy is imported. The
 coverage part plays every policy from the same starts (the first ``--episodes`` episodes of each
-val house) in the map-level environment (:mod:`kgnav.explore.mapenv`): the agent follows the
+val house) in the map-level environment (:mod:`kgnav.nets.explore.mapenv`): the agent follows the
 planner's path on the ground truth and maps by 2-D ray casting, exactly as the learned policy was
-trained; ``oracle`` is the greedy ground-truth look-ahead (:class:`kgnav.explore.bench.
+trained; ``oracle`` is the greedy ground-truth look-ahead (:class:`kgnav.nets.explore.bench.
 GreedyOracle`). ms/decision is the time of one ``select`` call (frontier: clustering and a Fast
 Marching over the explored area; ppo: the map crop, the network and the reachability snap).
 
@@ -27,8 +27,8 @@ from pathlib import Path
 import _one_core  # noqa: F401  (must come before numpy)
 import torch
 
-from kgnav.cli_explore import coverage_table
-from kgnav.explore.bench import compare_runs, coverage_bench
+from kgnav.cli.policy import coverage_table
+from kgnav.nets.explore.bench import compare_runs, coverage_bench
 
 
 def compare(base: Path, other: Path) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 from _table import print_table
 
 from kgnav import AbstractModel, Relocator
-from kgnav.synthetic import clustered_features
+from kgnav.memory.synthetic import clustered_features
 
 
 def models_from(feats: np.ndarray, which: np.ndarray) -> list[AbstractModel]:

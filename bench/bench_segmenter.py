@@ -22,9 +22,9 @@ import torch
 from _table import print_table
 from bench_agent import run as run_agent
 
-from kgnav.agent.segmenter import make_segmenter
-from kgnav.segnet.bench import render_frames
-from kgnav.segnet.net import preprocess
+from kgnav.agent.segmentation import make_segmenter
+from kgnav.nets.segnet.bench import render_frames
+from kgnav.nets.segnet.net import preprocess
 
 
 def best_ms(fn, repeats: int) -> float:

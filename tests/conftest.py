@@ -7,7 +7,7 @@ import pytest
 from hypothesis import settings
 
 from kgnav import AbstractModel, Detection
-from kgnav.synthetic import SyntheticWorld
+from kgnav.memory.synthetic import SyntheticWorld
 
 DIM = 64
 

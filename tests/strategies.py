@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import strategies as st
 
 from kgnav import ACTIONS, AbstractModel, Detection
-from kgnav.geometry import ScanGeometry
+from kgnav.memory.geometry import ScanGeometry
 
 CLASSES = ("chair", "sofa", "table", "bed")
 DIM = 6

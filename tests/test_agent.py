@@ -18,10 +18,10 @@ from kgnav.agent.memory import Memory
 from kgnav.agent.oracle import OracleAgent
 from kgnav.agent.planner import FMMPlanner, fmm_distance
 from kgnav.agent.policy import FrontierPolicy, cooccurrence, frontiers, make_policy
-from kgnav.agent.segmenter import make_segmenter
+from kgnav.agent.segmentation import make_segmenter
 from kgnav.agent.state_creator import StateCreator
 from kgnav.errors import KgnavError
-from kgnav.model import ACTIONS
+from kgnav.memory.model import ACTIONS
 from kgnav.sim import ObjectNavEnv
 
 TURN_AROUND = [3] * 12  # twelve right turns of 30 degrees: a full look around
@@ -365,8 +365,8 @@ def test_goal_point_skips_excluded_and_rarely_seen(tiny):
 @given(st.floats(-5, 5), st.floats(-5, 5), st.floats(-math.pi + 1e-3, math.pi - 1e-3),
        st.integers(0, 10_000))
 def test_rigid_fit_recovers_a_transform(tx, ty, theta, seed):
-    from kgnav import se2
     from kgnav.agent.relocation import rigid_fit as _rigid_fit
+    from kgnav.common import se2
 
     src = np.random.default_rng(seed).uniform(-4, 4, (6, 2))
     dst = se2.apply_to_points((tx, ty, theta), src)
@@ -415,8 +415,8 @@ def test_a_goal_in_view_replaces_a_remembered_one_only_if_believed_as_much(env):
     twice elsewhere (a segmenter's false positive) does not take over with ``live_override =
     'belief'``; with the paper's ``'always'`` it does. The same place always does."""
     from kgnav.agent.loop import Target
-    from kgnav.evidence import ScanTable
-    from kgnav.model import AbstractModel, Detection
+    from kgnav.memory.evidence import ScanTable
+    from kgnav.memory.model import AbstractModel, Detection
 
     m = AbstractModel(4, model_id="mem")
     for k in range(12):

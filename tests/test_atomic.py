@@ -10,8 +10,9 @@ import sys
 import numpy as np
 import pytest
 
-from kgnav import AbstractModel, ModelStore, atomic
-from kgnav.atomic import atomic_open
+from kgnav import AbstractModel, ModelStore
+from kgnav.common import atomic
+from kgnav.common.atomic import atomic_open
 
 
 @pytest.fixture
@@ -51,7 +52,7 @@ def test_replaced_file_keeps_its_mode(tmp_path, umask):
 
 def test_model_html_and_plot_saves_are_group_readable(tmp_path, umask, tiny):
     """Every writer goes through atomic_open: models, the HTML export, plots."""
-    from kgnav.export_html import export_html
+    from kgnav.memory.html import export_html
 
     umask(0o022)
     tiny.save(tmp_path / "m.graphml")
@@ -142,7 +143,7 @@ def test_killed_save_leaves_a_temp_file_the_next_save_removes(tmp_path, tiny):
         "import os, sys, numpy as np\n"
         f"sys.path.insert(0, {os.getcwd()!r})\n"
         "from kgnav import AbstractModel\n"
-        "from kgnav.atomic import atomic_open\n"
+        "from kgnav.common.atomic import atomic_open\n"
         f"with atomic_open({str(tmp_path / 'tiny.graphml')!r}, 'wb') as fh:\n"
         "    fh.write(b'<graphml half written')\n"
         "    fh.flush()\n"

@@ -13,9 +13,9 @@ from kgnav.agent.camera import Camera
 from kgnav.agent.features import make_extractor
 from kgnav.agent.loop import ObjectNavAgent
 from kgnav.agent.oracle import OracleAgent
-from kgnav.agent.segmenter import make_segmenter
-from kgnav.classes import OBJECTNAV_CLASSES
-from kgnav.evaluation.stats import paired_bootstrap, paired_differences
+from kgnav.agent.segmentation import make_segmenter
+from kgnav.benchmark.stats import paired_bootstrap, paired_differences
+from kgnav.common.classes import OBJECTNAV_CLASSES
 from kgnav.sim import Episode, ObjectInstance, ObjectNavEnv, Room, Scene, Texture, Wall
 from kgnav.sim.episodes import SPLIT_GENERATOR, SPLITS, episodes_for, generate_episodes
 from kgnav.sim.house_v2 import GOAL_ROOM_BUDGET, generate_large_house

@@ -1,5 +1,5 @@
 from kgnav import ModelStore
-from kgnav.demo import build_demo_memory
+from kgnav.memory.demo import build_demo_memory
 
 
 def test_demo_memory_relocates_and_merges(tmp_path):

@@ -13,10 +13,10 @@ import pytest
 import torch
 
 from kgnav.agent.features import make_extractor
-from kgnav.encoder import EncoderWeightsError, LearnedEncoder, load_weights
-from kgnav.encoder.train import TrainConfig, Trainer
-from kgnav.encoder.views import ViewSampler
-from kgnav.encoder.weights import DEFAULT_WEIGHTS, FORMAT, META_KEY, VERSION
+from kgnav.nets.encoder import EncoderWeightsError, LearnedEncoder, load_weights
+from kgnav.nets.encoder.train import TrainConfig, Trainer
+from kgnav.nets.encoder.views import ViewSampler
+from kgnav.nets.encoder.weights import DEFAULT_WEIGHTS, FORMAT, META_KEY, VERSION
 from kgnav.sim.episodes import load_scene_of
 
 # a tiny network and batch: training tests check mechanics, not quality
@@ -50,7 +50,7 @@ def test_shipped_weights_are_small_and_described():
 
 def test_make_extractor_imports_the_plugin_lazily():
     code = ("import sys; from kgnav.agent.features import make_extractor; "
-            "assert 'kgnav.encoder' not in sys.modules; "
+            "assert 'kgnav.nets.encoder' not in sys.modules; "
             "e = make_extractor('kgnav-encoder', device='cpu'); print(e.name, e.dim, e.threshold)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=120)
@@ -224,7 +224,7 @@ def test_resume_equals_an_uninterrupted_run(tmp_path):
 def test_exported_weights_match_the_training_network():
     t = Trainer(TrainConfig(seed=0, steps=2, **TINY)).fit()
     frames, _, _ = t.batch(0)
-    from kgnav.encoder.net import to_tensor
+    from kgnav.nets.encoder.net import to_tensor
 
     t.net.eval()
     with torch.no_grad():

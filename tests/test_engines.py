@@ -16,11 +16,11 @@ from pathlib import Path
 
 import pytest
 
+from kgnav.benchmark import runner
+from kgnav.benchmark.engines import LocalEngine, RayEngine, check_settings, make_engine
+from kgnav.benchmark.runner import EvalConfig, resolve_extractor, run_eval, run_variant
+from kgnav.benchmark.variants import VARIANTS
 from kgnav.errors import KgnavError
-from kgnav.evaluation import runner
-from kgnav.evaluation.engines import LocalEngine, RayEngine, check_settings, make_engine
-from kgnav.evaluation.runner import EvalConfig, resolve_extractor, run_eval, run_variant
-from kgnav.evaluation.variants import VARIANTS
 
 
 def _quick(**kw) -> EvalConfig:

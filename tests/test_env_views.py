@@ -1,5 +1,5 @@
 """Feature calibration on any environment: views walked through the protocol
-(kgnav.encoder.env_views), ``train-encoder --env`` and ``relocation-bench --env``.
+(kgnav.nets.encoder.env_views), ``train-encoder --env`` and ``relocation-bench --env``.
 
 The environment is the numpy grid room of tests/test_envs.py (not kgnav's simulator), so these
 run without OpenGL; tests/test_miniworld.py runs the benchmark on MiniWorld frames.
@@ -13,12 +13,12 @@ import math
 import numpy as np
 import pytest
 
-from kgnav.encoder.env_views import EnvViewSampler, walk_scene
-from kgnav.encoder.relocation import build_pairs
-from kgnav.encoder.views import NEGATIVE, POSITIVE, relation
-from kgnav.encoder.weights import load_weights
 from kgnav.envs import EnvOptions, make_env
 from kgnav.errors import KgnavError
+from kgnav.nets.encoder.calibration import build_pairs
+from kgnav.nets.encoder.env_views import EnvViewSampler, walk_scene
+from kgnav.nets.encoder.views import NEGATIVE, POSITIVE, relation
+from kgnav.nets.encoder.weights import load_weights
 from tests.test_envs import GridRoom
 
 GRID = "tests.test_envs:GridSuite"
@@ -145,7 +145,7 @@ def test_bad_environment_arguments_are_one_line_usage_errors(tmp_path, cli, args
 @pytest.fixture(scope="module")
 def grid_weights(sampler, tmp_path_factory):
     """A (barely) trained encoder on the grid room's frames, threshold 0.05."""
-    from kgnav.encoder.train import TrainConfig, Trainer
+    from kgnav.nets.encoder.train import TrainConfig, Trainer
 
     cfg = TrainConfig(seed=0, steps=1, dim=8, houses_per_batch=2, places_per_house=2,
                       split=f"{GRID}:train", n_houses=len(sampler))
@@ -155,8 +155,8 @@ def grid_weights(sampler, tmp_path_factory):
 
 
 def test_other_weights_are_another_extractor(grid_weights, tmp_path):
-    from kgnav.encoder.extractor import LOOP_THRESHOLD, LearnedEncoder
-    from kgnav.encoder.weights import DEFAULT_WEIGHTS, set_threshold
+    from kgnav.nets.encoder.extractor import LOOP_THRESHOLD, LearnedEncoder
+    from kgnav.nets.encoder.weights import DEFAULT_WEIGHTS, set_threshold
 
     shipped = LearnedEncoder(device="cpu")
     assert shipped.name == "kgnav-encoder" and shipped.loop_threshold == LOOP_THRESHOLD

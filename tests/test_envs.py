@@ -20,7 +20,9 @@ import pytest
 from kgnav.agent.camera import Camera
 from kgnav.agent.features import make_extractor
 from kgnav.agent.loop import AgentConfig, ObjectNavAgent, Target
-from kgnav.agent.segmenter import make_segmenter
+from kgnav.agent.segmentation import make_segmenter
+from kgnav.benchmark.memory_update import absorb
+from kgnav.benchmark.runner import EvalConfig, run_eval
 from kgnav.envs import (
     ENVS,
     ActionSpec,
@@ -33,9 +35,7 @@ from kgnav.envs import (
     register_env,
 )
 from kgnav.errors import KgnavError, UnknownClassError
-from kgnav.evaluation.memory_update import absorb
-from kgnav.evaluation.runner import EvalConfig, run_eval
-from kgnav.model import AbstractModel
+from kgnav.memory.model import AbstractModel
 
 CLASSES = ("crate", "barrel", "cone")
 WALL_H, RADIUS = 2.2, 0.15
@@ -546,7 +546,7 @@ def test_oracle_needs_ground_truth_the_environment_lacks():
 
 
 def test_agent_does_not_import_the_simulator():
-    code = ("import sys, kgnav.agent.loop, kgnav.agent.oracle, kgnav.agent.segmenter, "
+    code = ("import sys, kgnav.agent.loop, kgnav.agent.oracle, kgnav.agent.noise_segmenters, "
             "kgnav.envs; bad = [m for m in sys.modules if m.startswith('kgnav.sim')]; "
             "print(bad); sys.exit(1 if bad else 0)")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
@@ -649,10 +649,11 @@ def test_the_readme_adapter_runs(monkeypatch):
     import types
     from pathlib import Path
 
-    from kgnav.agent.segmenter import SEGMENTERS
+    from kgnav.agent.segmentation import SEGMENTERS
 
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = text[text.index("## Bring your own simulator"):]
+    doc = Path(__file__).resolve().parents[1] / "docs" / "bring-your-own-simulator.md"
+    text = doc.read_text()
+    section = text[text.index("# Bring your own simulator"):]
     code = section[section.index("```python\n") + 10:]
     code = code[:code.index("```")]
     mysim = types.ModuleType("mysim")

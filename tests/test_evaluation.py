@@ -7,12 +7,12 @@ import json
 import pytest
 from click.testing import CliRunner
 
+from kgnav.benchmark.failures import FAILURE_CLASSES, classify
+from kgnav.benchmark.runner import EvalConfig, run_eval, summarize
+from kgnav.benchmark.variants import parse_variants
 from kgnav.cli import app, main
 from kgnav.errors import KgnavError
-from kgnav.evaluation.failures import FAILURE_CLASSES, classify
-from kgnav.evaluation.runner import EvalConfig, run_eval, summarize
-from kgnav.evaluation.variants import parse_variants
-from kgnav.store import ModelStore
+from kgnav.memory.store import ModelStore
 
 REQUIRED = {"variant", "scene", "episode", "goal", "success", "spl", "softspl", "dts", "steps",
             "path_length", "failure", "relocated"}
@@ -137,7 +137,7 @@ def test_the_pre_exploration_takes_no_look_around(monkeypatch):
     explores all round anyway, and with it a walk of val_00 ended, walled in by its own
     collision marks, after 51 of its 1500 steps. Its first actions are then not a full turn."""
     from kgnav.agent.loop import ObjectNavAgent
-    from kgnav.evaluation.runner import pre_explore, resolve_extractor
+    from kgnav.benchmark.runner import pre_explore, resolve_extractor
 
     looks, actions = [], []
     init, act = ObjectNavAgent.__init__, ObjectNavAgent.act

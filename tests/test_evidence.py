@@ -10,8 +10,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from kgnav import AbstractModel, Detection, merge, query, se2
-from kgnav.evidence import (
+from kgnav import AbstractModel, Detection, merge, query
+from kgnav.common import se2
+from kgnav.memory.evidence import (
     BeliefModel,
     Evidence,
     ScanTable,
@@ -19,8 +20,8 @@ from kgnav.evidence import (
     forget,
     object_evidence,
 )
-from kgnav.geometry import ScanGeometry, occupancy_from_scans
-from kgnav.model import SEES
+from kgnav.memory.geometry import ScanGeometry, occupancy_from_scans
+from kgnav.memory.model import SEES
 from tests.strategies import SCAN, models
 
 PROPS = settings(max_examples=60, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -143,7 +144,7 @@ def test_another_label_at_the_same_place_takes_the_goal_share():
     assert choose_goal(m, "sofa", (0, 0), GoalConfig()) is None
     assert choose_goal(m, "sofa", (0, 0), GoalConfig(min_label_share=0.0)).id == sofa
     # consolidation forgets the minority label, keeps the majority one
-    from kgnav.evidence import forget
+    from kgnav.memory.evidence import forget
 
     (desk,) = [o for o in m.objects() if m.graph.nodes[o]["cls"] == "desk"]
     assert forget(m, 0.2, min_label_share=0.0) == 0
@@ -253,7 +254,7 @@ def test_occupancy_never_misplaces_edge_hits_and_survives_foreign_ranges():
     that range, outside the grid sized by it: it is dropped, never wrapped into another row of
     the grid (nor a crash, as it used to be); ranges beyond the sensor, infinite or NaN are read
     as no return."""
-    from kgnav.geometry import occupancy_from_scans
+    from kgnav.memory.geometry import occupancy_from_scans
 
     scan = ScanGeometry(79.0, 40, 5.0)
     r = np.full(40, 4.99, np.float32)

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from kgnav import ModelStore, query
-from kgnav.demo import build_demo_memory
+from kgnav.memory.demo import build_demo_memory
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPTS = sorted(p.name for p in (ROOT / "queries").glob("*.py") if not p.name.startswith("_"))
@@ -76,7 +76,7 @@ def test_action_path(memory):
 
 
 def test_relocate_and_merge(memory, tmp_path):
-    from kgnav.synthetic import SyntheticWorld
+    from kgnav.memory.synthetic import SyntheticWorld
 
     path, _ = memory
     # a new episode in the demo's first world (seed 0) relocates into that world's model

@@ -15,15 +15,15 @@ from kgnav.agent.camera import Camera
 from kgnav.agent.mapping import MapBuilder
 from kgnav.agent.planner import FMMPlanner
 from kgnav.agent.policy import POLICIES, make_policy, policy_names
+from kgnav.benchmark.variants import VARIANTS, with_policy
 from kgnav.cli import main
 from kgnav.errors import KgnavError
-from kgnav.evaluation.variants import VARIANTS, with_policy
-from kgnav.explore.mapenv import Feedback, MapExploreEnv
-from kgnav.explore.net import ExploreArch, ExploreNet, Observer
-from kgnav.explore.policy import LearnedPolicy, reachable_cell
-from kgnav.explore.train import PPOConfig, PPOTrainer
-from kgnav.explore.weights import DEFAULT_WEIGHTS, PolicyWeightsError, load_weights
-from kgnav.npz_weights import META_KEY
+from kgnav.nets.explore.mapenv import Feedback, MapExploreEnv
+from kgnav.nets.explore.net import ExploreArch, ExploreNet, Observer
+from kgnav.nets.explore.policy import LearnedPolicy, reachable_cell
+from kgnav.nets.explore.train import PPOConfig, PPOTrainer
+from kgnav.nets.explore.weights import DEFAULT_WEIGHTS, PolicyWeightsError, load_weights
+from kgnav.nets.weights import META_KEY
 from kgnav.sim.house import Room, Scene, Texture, Wall, generate_house
 
 # training tests check mechanics, not quality: a tiny network, short episodes
@@ -227,7 +227,7 @@ def test_reachable_cell_moves_a_goal_out_of_a_wall():
 
 
 def test_semantic_policy_starts_as_the_ppo_policy(small_houses, tmp_path):
-    from kgnav.explore.train import warm_start
+    from kgnav.nets.explore.train import warm_start
 
     t = _train(small_houses, 1)
     w = t.export()
@@ -290,7 +290,7 @@ def test_unshipped_semantic_weights_say_how_to_train_them(monkeypatch, tmp_path)
 
 
 def test_eval_runs_with_the_learned_policy(tmp_path):
-    from kgnav.evaluation.runner import EvalConfig, _env, _make_agent, run_eval
+    from kgnav.benchmark.runner import EvalConfig, _env, _make_agent, run_eval
 
     cfg = EvalConfig(split="val", variants=("ans",), scenes=1, episodes=1, max_steps=30,
                      segmenter="clean", extractor="opencv-gist", policy="ppo")
@@ -317,7 +317,7 @@ def test_cli_usage_errors(capsys, tmp_path):
 
 
 def test_train_policy_command(tmp_path, capsys, monkeypatch):
-    from kgnav.explore import train as train_mod
+    from kgnav.nets.explore import train as train_mod
 
     small = dict(TINY, steps=1)
     small.pop("n_houses")

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from kgnav import AbstractModel
-from kgnav.export_html import export_html
-from kgnav.synthetic import SyntheticWorld
+from kgnav.memory.html import export_html
+from kgnav.memory.synthetic import SyntheticWorld
 
 # Any attribute that would make the browser fetch something remote (http:, https:, or //host).
 REMOTE_REF = re.compile(r"""\b(?:src|href)\s*=\s*["']?\s*(?:https?:)?//""", re.IGNORECASE)
@@ -129,7 +129,7 @@ def test_title_is_escaped_and_failure_keeps_old_file(model, tmp_path, monkeypatc
     html = path.read_text(encoding="utf-8")
     assert "&lt;b&gt;A &amp; B&lt;/b&gt;" in html and "<b>A" not in html
 
-    import kgnav.export_html as mod
+    import kgnav.memory.html as mod
 
     def boom(*args, **kwargs):
         raise RuntimeError("render failed")
@@ -193,7 +193,7 @@ def test_the_remembered_floor_and_evidence_are_drawn(tmp_path):
     import cv2
 
     from kgnav import Detection
-    from kgnav.geometry import ScanGeometry
+    from kgnav.memory.geometry import ScanGeometry
 
     m = AbstractModel(2, model_id="floor", scan=ScanGeometry(90.0, 9, 5.0))
     m.add_state([1.0, 0.0], (0, 0, 0), [Detection("chair", (2.0, 0.0, 0.4))],

@@ -13,10 +13,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from kgnav import AbstractModel
-from kgnav import graphml_read as gr
-from kgnav import graphml_schema as gs
-from kgnav.graphml import to_graphml
-from kgnav.synthetic import SyntheticWorld
+from kgnav.memory.graphml import read as gr
+from kgnav.memory.graphml import schema as gs
+from kgnav.memory.graphml import to_graphml
+from kgnav.memory.synthetic import SyntheticWorld
 from tests.strategies import SCAN, models
 
 
@@ -26,9 +26,9 @@ def _walk(dim: int = 16, steps: int = 150) -> AbstractModel:
 
 def _agree(path, block: int = gr.BLOCK) -> dict:
     """Read ``path`` with both readers: the same model, in the same order; the bulk stats."""
-    xml = gr._XmlReader(str(path), 1 << 30).read()
+    xml = AbstractModel.from_graph(gr._XmlReader(str(path), 1 << 30).read())
     reader = gr._Canonical(str(path), 1 << 30, block)
-    m = reader.read()
+    m = AbstractModel.from_graph(reader.read())
     assert m == xml
     assert to_graphml(m) == to_graphml(xml)
     return reader.stats
@@ -44,7 +44,7 @@ def test_a_saved_walk_is_read_in_bulk(tmp_path):
     m.save(path)
     data = path.read_bytes()
     stats = _agree(path)
-    assert to_graphml(gr._read_canonical(str(path), 1 << 30)) == data
+    assert to_graphml(AbstractModel.from_graph(gr._read_canonical(str(path), 1 << 30))) == data
     # everything but the header (declaration, root, keys, graph, its data)
     body = _body_lines(data)
     assert body == m.graph.number_of_nodes() + m.graph.number_of_edges()
@@ -73,7 +73,7 @@ def test_a_line_outside_the_layout_is_read_line_by_line(tmp_path):
     m.save(path)
     stats = _agree(path, 4096)
     assert stats["bulk"] > 0 and stats["line"] > 10
-    assert gr.read_model(path).graph.nodes[sid]["note"] == "kitchen"
+    assert AbstractModel.load(path).graph.nodes[sid]["note"] == "kitchen"
 
 
 @settings(max_examples=60, derandomize=True, deadline=None, database=None,
@@ -84,7 +84,7 @@ def test_models_read_the_same_in_bulk(tmp_path, m, block):
     path = tmp_path / "m.graphml"
     m.save(path)
     _agree(path, block)
-    assert gr._read_canonical(str(path), 1 << 30, block) == m
+    assert AbstractModel.from_graph(gr._read_canonical(str(path), 1 << 30, block)) == m
 
 
 # values a hand or another tool may write, where kgnav writes a plain number or id
@@ -112,12 +112,12 @@ def test_odd_values_read_as_xml_reads_them(tmp_path, where, odd):
         path = tmp_path / "m.graphml"
         path.write_bytes(data[: line.start()] + new + data[line.end() :])
         try:
-            xml = gr._XmlReader(str(path), 1 << 30).read()
+            xml = AbstractModel.from_graph(gr._XmlReader(str(path), 1 << 30).read())
         except Exception:  # noqa: BLE001 - any refusal
             xml = None
         try:
-            bulk = gr._read_canonical(str(path), 1 << 30)
-        except Exception:  # noqa: BLE001 - read_model then asks the XML reader
+            bulk = AbstractModel.from_graph(gr._read_canonical(str(path), 1 << 30))
+        except Exception:  # noqa: BLE001 - read_graph then asks the XML reader
             continue
         assert xml is not None and bulk == xml and to_graphml(bulk) == to_graphml(xml), new
 
@@ -136,13 +136,13 @@ def test_features_must_be_plain_base64_to_be_read_in_bulk(tmp_path):
         path = tmp_path / "m.graphml"
         path.write_bytes(data[:a] + bad + data[b:])
         try:
-            xml = gr._XmlReader(str(path), 1 << 30).read()
+            xml = AbstractModel.from_graph(gr._XmlReader(str(path), 1 << 30).read())
         except Exception:  # noqa: BLE001
             xml = None
         reader = gr._Canonical(str(path), 1 << 30)
         try:
-            back = reader.read()
-        except Exception:  # noqa: BLE001 - read_model then asks the XML reader
+            back = AbstractModel.from_graph(reader.read())
+        except Exception:  # noqa: BLE001 - read_graph then asks the XML reader
             continue
         assert reader.stats["line"] > header and back == xml, bad
 
@@ -157,7 +157,7 @@ def test_range_profiles_are_read_in_bulk(tmp_path):
     m.save(path)
     stats = _agree(path)
     assert stats["bulk"] == 3 + 2
-    back = gr._read_canonical(str(path), 1 << 30)
+    back = AbstractModel.from_graph(gr._read_canonical(str(path), 1 << 30))
     assert "ranges" not in back.graph.nodes[s] and back == m
 
 

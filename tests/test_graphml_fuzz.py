@@ -17,9 +17,9 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from kgnav import AbstractModel, KgnavError, ModelStore
-from kgnav import graphml_read as gr
-from kgnav.graphml import to_graphml
-from kgnav.synthetic import SyntheticWorld
+from kgnav.memory.graphml import read as gr
+from kgnav.memory.graphml import to_graphml
+from kgnav.memory.synthetic import SyntheticWorld
 from tests.strategies import models
 
 DATA = pathlib.Path(__file__).parent / "data" / "graphml"
@@ -136,8 +136,8 @@ def test_mutated_files_load_or_fail_cleanly(tmp_path, data):
 
     # the fast reader of kgnav's layout never accepts what the XML reader reads otherwise
     try:
-        canonical = gr._read_canonical(str(path), 1 << 24)
-    except Exception:  # noqa: BLE001 - any failure sends read_model to the XML reader
+        canonical = AbstractModel.from_graph(gr._read_canonical(str(path), 1 << 24))
+    except Exception:  # noqa: BLE001 - any failure sends read_graph to the XML reader
         canonical = None
     if canonical is not None:
         event("read by the fast reader")
@@ -172,6 +172,6 @@ def test_both_readers_read_valid_files_the_same(tmp_path, m, label, flag):
     m.graph.graph["checked"] = flag
     path = tmp_path / "m.graphml"
     m.save(path)
-    assert gr._XmlReader(str(path), 1 << 24).read() == m
+    assert AbstractModel.from_graph(gr._XmlReader(str(path), 1 << 24).read()) == m
     if b"&" not in path.read_bytes():
-        assert gr._read_canonical(str(path), 1 << 24) == m
+        assert AbstractModel.from_graph(gr._read_canonical(str(path), 1 << 24)) == m

@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
+from kgnav.benchmark.memory_map import PALETTE, draw_memory, draw_run
 from kgnav.cli import main
 from kgnav.errors import KgnavError
-from kgnav.evaluation.memory_map import PALETTE, draw_memory, draw_run
-from kgnav.model import AbstractModel, Detection
+from kgnav.memory.model import AbstractModel, Detection
 from kgnav.sim.house import generate_house
 from kgnav.sim.topdown import _MARGIN, draw_topdown
 

@@ -5,7 +5,8 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from kgnav import AbstractModel, Detection, KgnavError, best_anchor, merge, se2
+from kgnav import AbstractModel, Detection, KgnavError, best_anchor, merge
+from kgnav.common import se2
 from tests.strategies import CLASSES, DIM, models
 
 PROPS = settings(max_examples=60, suppress_health_check=[HealthCheck.function_scoped_fixture])

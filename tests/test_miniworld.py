@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 
 from kgnav.agent.camera import Camera
+from kgnav.benchmark.runner import EvalConfig, run_eval
 from kgnav.envs import EnvOptions, check_env, check_observation, make_env
 from kgnav.errors import KgnavError
-from kgnav.evaluation.runner import EvalConfig, run_eval
 
 mwh = pytest.importorskip("kgnav.envs.miniworld_house")
 
@@ -330,7 +330,7 @@ def test_benchmark_is_the_same_with_two_workers(evaluated, tmp_path):
     """A fresh process (no OpenGL context yet) with forked workers gives the same episodes."""
     _cfg, _out, records, _summary = evaluated
     out = tmp_path / "w2"
-    code = ("from kgnav.evaluation.runner import EvalConfig, run_eval; "
+    code = ("from kgnav.benchmark.runner import EvalConfig, run_eval; "
             "run_eval(EvalConfig(env='miniworld', split='tiny', variants=('ans',), "
             "segmenter='clean', extractor='opencv-gist', episodes=2, max_steps=150, "
             f"workers=2), {str(out)!r}, progress=False)")

@@ -9,8 +9,8 @@ from kgnav import (
     FeatureDimError,
     UnknownClassError,
     UnknownStateError,
-    se2,
 )
+from kgnav.common import se2
 
 
 def test_tiny_structure(tiny):

@@ -69,8 +69,8 @@ def test_action_path_replays_in_the_world(world):
     """Following the returned actions from a state's pose reaches the goal state's pose."""
     import math
 
-    from kgnav import se2
-    from kgnav.synthetic import FORWARD_M, TURN_RAD
+    from kgnav.common import se2
+    from kgnav.memory.synthetic import FORWARD_M, TURN_RAD
 
     m = world.explore(150, episode=0, seed=4)
     states = list(m.states())

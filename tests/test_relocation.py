@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from kgnav import se2
 from kgnav.agent.memory import Memory
 from kgnav.agent.relocation import Relocalizer, RelocationConfig
 from kgnav.agent.state_creator import AbstractState
-from kgnav.geometry import ScanGeometry
-from kgnav.model import AbstractModel, Detection
+from kgnav.common import se2
+from kgnav.memory.geometry import ScanGeometry
+from kgnav.memory.model import AbstractModel, Detection
 
 SCAN = ScanGeometry(79.0, 40, 5.0)
 DIM = 8

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from kgnav.agent.features import make_extractor
-from kgnav.encoder.relocation import (
+from kgnav.nets.encoder.calibration import (
     KINDS,
     at_threshold,
     build_pairs,
@@ -17,7 +17,7 @@ from kgnav.encoder.relocation import (
     evaluate,
     roc_points,
 )
-from kgnav.encoder.views import (
+from kgnav.nets.encoder.views import (
     AMBIGUOUS,
     NEGATIVE,
     POSITIVE,
@@ -26,7 +26,7 @@ from kgnav.encoder.views import (
     relation_matrix,
     relations,
 )
-from kgnav.encoder.weights import DEFAULT_WEIGHTS, load_weights
+from kgnav.nets.encoder.weights import DEFAULT_WEIGHTS, load_weights
 from kgnav.sim.episodes import load_scene_of
 
 

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from kgnav import AbstractModel, FeatureDimError, KgnavError, ModelStore, Relocator
-from kgnav.relocator import BACKENDS
-from kgnav.synthetic import SyntheticWorld, clustered_features
+from kgnav.memory.relocator import BACKENDS
+from kgnav.memory.synthetic import SyntheticWorld, clustered_features
 
 
 def _model(mid, feats, extractor="unspecified"):

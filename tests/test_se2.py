@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from kgnav import se2
+from kgnav.common import se2
 
 coord = st.floats(-50, 50, allow_nan=False)
 angle = st.floats(-math.pi, math.pi, allow_nan=False)

@@ -9,16 +9,14 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from kgnav.agent.segmenter import (
+from kgnav.agent.noise_segmenters import (
     CONFUSIONS,
     SEGMENTER_PRESETS,
     NoisySegmenter,
-    Segmentation,
-    Segmenter,
     SegmenterNoise,
-    make_segmenter,
 )
-from kgnav.classes import OBJECT_CLASSES, OBJECTNAV_CLASSES
+from kgnav.agent.segmentation import Segmentation, Segmenter, make_segmenter
+from kgnav.common.classes import OBJECT_CLASSES, OBJECTNAV_CLASSES
 from kgnav.errors import KgnavError
 
 H, W = 120, 160

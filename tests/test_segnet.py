@@ -10,20 +10,20 @@ import numpy as np
 import pytest
 import torch
 
-from kgnav.agent.segmenter import Segmentation, make_segmenter
-from kgnav.classes import OBJECT_CLASSES
+from kgnav.agent.segmentation import Segmentation, make_segmenter
+from kgnav.common.classes import OBJECT_CLASSES
 from kgnav.errors import KgnavError
-from kgnav.npz_weights import META_KEY
-from kgnav.segnet.bench import Scorer, render_frames, score
-from kgnav.segnet.data import LabelledViews
-from kgnav.segnet.segmenter import LearnedSegmenter
-from kgnav.segnet.train import SegTrainConfig, SegTrainer
-from kgnav.segnet.weights import (
+from kgnav.nets.segnet.bench import Scorer, render_frames, score
+from kgnav.nets.segnet.data import LabelledViews
+from kgnav.nets.segnet.segmenter import LearnedSegmenter
+from kgnav.nets.segnet.train import SegTrainConfig, SegTrainer
+from kgnav.nets.segnet.weights import (
     DEFAULT_WEIGHTS,
     VERSION,
     SegmenterWeightsError,
     load_weights,
 )
+from kgnav.nets.weights import META_KEY
 from kgnav.sim.house import generate_house
 
 # a tiny network and batch: training tests check mechanics, not quality
@@ -123,7 +123,7 @@ def test_other_resolutions(seg, frames):
 
 
 def test_class_maps_become_components_with_scores():
-    from kgnav.segnet.segmenter import ClassMapSegmenter, segmentation_from_classes
+    from kgnav.nets.segnet.segmenter import ClassMapSegmenter, segmentation_from_classes
 
     cls = np.zeros((30, 40), np.int64)
     cls[2:8, 2:8] = 1  # two separate chairs ...
@@ -172,7 +172,7 @@ def _rewrite(src, dst, meta=None, drop=(), change=None):
                                   "version", "shape", "missing", "nan", "classes", "arch",
                                   "threshold"])
 def test_bad_weight_files_raise_one_line_errors(tmp_path, case, cli):
-    from kgnav.encoder.weights import DEFAULT_WEIGHTS as ENCODER_WEIGHTS
+    from kgnav.nets.encoder.weights import DEFAULT_WEIGHTS as ENCODER_WEIGHTS
 
     good = DEFAULT_WEIGHTS
     bad = tmp_path / f"{case}.npz"

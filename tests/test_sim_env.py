@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 import pytest
 
-from kgnav.classes import class_id
+from kgnav.common.classes import class_id
 from kgnav.sim import (
     Episode,
     ObjectInstance,

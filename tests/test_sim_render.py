@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from kgnav.classes import class_id
+from kgnav.common.classes import class_id
 from kgnav.sim import (
     MOVE_FORWARD,
     STOP,

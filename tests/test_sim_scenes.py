@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from kgnav.classes import OBJECT_CLASSES, OBJECTNAV_CLASSES, STABLE_CLASSES
+from kgnav.common.classes import OBJECT_CLASSES, OBJECTNAV_CLASSES, STABLE_CLASSES
 from kgnav.errors import SceneFileError
 from kgnav.sim import (
     SPLITS,

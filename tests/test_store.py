@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from kgnav import AbstractModel, ModelFileError, ModelStore, StoreError
-from kgnav.merge import merge
+from kgnav.memory.merge import merge
 
 
 def _model(mid, n=3, dim=4):

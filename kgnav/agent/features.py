@@ -21,7 +21,7 @@ from typing import Protocol, runtime_checkable
 import cv2
 import numpy as np
 
-from kgnav.errors import KgnavError
+from kgnav.registry import Registry
 
 
 @runtime_checkable
@@ -39,30 +39,17 @@ class FeatureExtractor(Protocol):
     def __call__(self, rgb: np.ndarray) -> np.ndarray: ...
 
 
-EXTRACTORS: dict[str, Callable[..., FeatureExtractor]] = {}
-# modules that register extractors on import; imported on the first unknown-name lookup so
-# that ``import kgnav`` does not pull in torch
-_PLUGINS = ("kgnav.encoder.extractor",)
-
-
-def register_extractor(name: str):
-    """Class decorator adding a feature-extractor factory to :data:`EXTRACTORS`."""
-
-    def deco(factory):
-        EXTRACTORS[name] = factory
-        return factory
-
-    return deco
+#: Feature extractors by name; the learned encoder (:mod:`kgnav.nets.encoder.extractor`)
+#: registers on first use, so that ``import kgnav`` does not pull in torch.
+REGISTRY: Registry[Callable[..., FeatureExtractor]] = Registry(
+    "feature extractor", plugins=("kgnav.nets.encoder.extractor",))
+EXTRACTORS = REGISTRY.factories
+register_extractor = REGISTRY.register
 
 
 def make_extractor(name: str, **params) -> FeatureExtractor:
     """Build the registered extractor ``name`` (e.g. ``"opencv-gist"``)."""
-    if name not in EXTRACTORS:
-        _load_plugins()
-    if name not in EXTRACTORS:
-        known = ", ".join(sorted(EXTRACTORS))
-        raise KgnavError(f"unknown feature extractor {name!r} (known: {known})")
-    return EXTRACTORS[name](**params)
+    return REGISTRY.get(name)(**params)
 
 
 #: The paper's relocation threshold, for extractors without a calibrated one.
@@ -75,17 +62,6 @@ def loop_threshold(extractor) -> float:
     ``threshold``, else :data:`DEFAULT_THRESHOLD`."""
     return float(getattr(extractor, "loop_threshold",
                          getattr(extractor, "threshold", DEFAULT_THRESHOLD)))
-
-
-def _load_plugins() -> None:
-    import importlib
-
-    for mod in _PLUGINS:
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as exc:
-            if not (exc.name and mod.startswith(exc.name)):  # a broken plugin is a real error
-                raise
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

@@ -1,9 +1,9 @@
 """Which remembered object to head for: the paper's view count, or the belief of the evidence.
 
 * ``"views"`` (the paper): the closest to the agent among the ``top_k`` most-seen objects of the
-  goal class (:func:`kgnav.query.goal_point`).
+  goal class (:func:`kgnav.memory.query.goal_point`).
 * ``"belief"`` (the default): the closest among the objects of the goal class whose belief
-  (:func:`kgnav.evidence.belief`: views against misses of the states that had them in view)
+  (:func:`kgnav.memory.evidence.belief`: views against misses of the states that had them in view)
   is at least ``min_belief`` and whose place gave the goal class in at least
   ``min_label_share`` of its views (the rest: another class at the same spot, a segmenter's
   confusion). A place the memory looked at many times without seeing the goal there is no
@@ -23,8 +23,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from kgnav import query
-from kgnav.evidence import (
+from kgnav.memory import query
+from kgnav.memory.evidence import (
     DEFAULT_BELIEF,
     BeliefModel,
     Evidence,
@@ -32,7 +32,7 @@ from kgnav.evidence import (
     belief,
     object_evidence,
 )
-from kgnav.model import AbstractModel, ObjectInfo
+from kgnav.memory.model import AbstractModel, ObjectInfo
 
 GOAL_RULES = ("belief", "views")
 
@@ -62,7 +62,7 @@ def choose_goal(model: AbstractModel, cls: str, near, config: GoalConfig,
                 cache: dict | None = None, current: str | None = None) -> ObjectInfo | None:
     """The object of class ``cls`` to head for from ``near`` (model frame), or None;
     ``among``: consider only these object ids; ``cache``: evidence kept between calls (see
-    :func:`kgnav.evidence.object_evidence`); ``current``: the object headed for so far, which
+    :func:`kgnav.memory.evidence.object_evidence`); ``current``: the object headed for so far, which
     stays the goal while it qualifies unless another is closer by more than
     ``config.keep_margin`` (walking past one goal toward another does not flip between them).
     """

@@ -25,7 +25,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from kgnav import se2
 from kgnav.agent.camera import Camera
 from kgnav.agent.features import FeatureExtractor
 from kgnav.agent.goals import GoalConfig, choose_goal, trusts
@@ -34,14 +33,15 @@ from kgnav.agent.memory import Memory
 from kgnav.agent.planner import FMMPlanner, Plan
 from kgnav.agent.policy import FrontierPolicy, GlobalPolicy
 from kgnav.agent.relocation import Relocalizer, Relocation, RelocationConfig
-from kgnav.agent.segmenter import Segmentation
+from kgnav.agent.segmentation import Segmentation
 from kgnav.agent.state_creator import AbstractState, StateCreator
-from kgnav.classes import OBJECT_CLASSES
+from kgnav.common import se2
+from kgnav.common.classes import OBJECT_CLASSES
 from kgnav.envs.spec import ActionSpec, EnvSpecError
 from kgnav.errors import UnknownClassError
-from kgnav.evidence import ScanTable, belief, object_evidence
-from kgnav.merge import merge
-from kgnav.model import AbstractModel
+from kgnav.memory.evidence import ScanTable, belief, object_evidence
+from kgnav.memory.merge import merge
+from kgnav.memory.model import AbstractModel
 
 STRATEGIES = ("hard", "soft")
 SOFT_SEARCHES = ("direct", "area")

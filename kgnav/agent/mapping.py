@@ -43,8 +43,8 @@ import cv2
 import numpy as np
 
 from kgnav.agent.camera import Camera
-from kgnav.classes import OBJECT_CLASSES
-from kgnav.geometry import OccupancyGrid
+from kgnav.common.classes import OBJECT_CLASSES
+from kgnav.memory.geometry import OccupancyGrid
 
 
 @dataclass
@@ -248,8 +248,8 @@ class MapBuilder:
         return m
 
     def seed(self, grid: OccupancyGrid, transform) -> EpisodeMap:
-        """Add a remembered :class:`~kgnav.geometry.OccupancyGrid` (in a model's frame) to the
-        map as prior knowledge: ``transform`` maps the episode frame into the model frame (a
+        """Add a remembered :class:`~kgnav.memory.geometry.OccupancyGrid` (in a model's frame) to
+        the map as prior knowledge: ``transform`` maps the episode frame into the model frame (a
         relocation's). Known-free cells join ``prior_explored``; obstacles ``prior_obstacle``
         (which the agent's own view clears again where it sees free space). The map grows to
         hold the remembered area (up to ``max_size``)."""

@@ -3,21 +3,21 @@
 The agent is never told which environment it is in; the memory holds every stored model and
 relocation picks one by matching the current state's features (the paper's ``s*``). The memory
 is a read-only snapshot for the episode: what the episode learns goes back to the store at its
-end (see :mod:`kgnav.evaluation.runner`). Each model's occupancy (what its states' range
-profiles saw, :mod:`kgnav.geometry`) is built on first use and kept, to verify relocations and
-seed the episode map.
+end (see :mod:`kgnav.benchmark.runner`). Each model's occupancy (what its states' range
+profiles saw, :mod:`kgnav.memory.geometry`) is built on first use and kept, to verify relocations
+and seed the episode map.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 
-from kgnav.model import AbstractModel
-from kgnav.relocator import Match, Relocator
+from kgnav.memory.model import AbstractModel
+from kgnav.memory.relocator import Match, Relocator
 
 
 class Memory:
-    """Stored Abstract Models plus a fitted :class:`~kgnav.relocator.Relocator` over them."""
+    """Stored Abstract Models plus a fitted :class:`~kgnav.memory.relocator.Relocator` over them."""
 
     def __init__(self, models: Mapping[str, AbstractModel], threshold: float = 0.3,
                  backend: str = "exact"):

@@ -20,7 +20,7 @@ from collections import deque
 import numpy as np
 
 from kgnav.agent.planner import descend, fmm_distance, steer
-from kgnav.model import ACTIONS
+from kgnav.memory.model import ACTIONS
 
 _FORWARD, _LEFT, _RIGHT = (ACTIONS.index(a) for a in ("move_forward", "turn_left", "turn_right"))
 

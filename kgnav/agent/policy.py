@@ -13,7 +13,6 @@ sensors, so a learned policy can be plugged in:
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
@@ -22,7 +21,7 @@ import numpy as np
 
 from kgnav.agent.mapping import EpisodeMap
 from kgnav.agent.planner import FMMPlanner, fmm_distance
-from kgnav.errors import KgnavError
+from kgnav.registry import Registry
 
 
 @runtime_checkable
@@ -38,34 +37,21 @@ class GlobalPolicy(Protocol):
                ) -> tuple[int, int] | None: ...
 
 
-POLICIES: dict[str, Callable[..., GlobalPolicy]] = {}
-#: Modules registering more policies, imported on first use (the learned ones need torch).
-_PLUGINS = ("kgnav.explore.policy",)
-
-
-def register_policy(name: str):
-    """Class decorator adding a global-policy factory to :data:`POLICIES`."""
-
-    def deco(factory):
-        POLICIES[name] = factory
-        return factory
-
-    return deco
+#: Global policies by name; the learned ones (:mod:`kgnav.nets.explore.policy`) register on first
+#: use, since they need torch.
+REGISTRY: Registry[Callable[..., GlobalPolicy]] = Registry(
+    "global policy", plugins=("kgnav.nets.explore.policy",))
+POLICIES = REGISTRY.factories
+register_policy = REGISTRY.register
 
 
 def policy_names() -> list[str]:
     """Every registered policy name, the plugins' included."""
-    for mod in _PLUGINS:
-        importlib.import_module(mod)
-    return sorted(POLICIES)
+    return REGISTRY.names()
 
 
 def make_policy(name: str, **params) -> GlobalPolicy:
-    if name not in POLICIES:
-        policy_names()
-    if name not in POLICIES:
-        raise KgnavError(f"unknown global policy {name!r} (known: {', '.join(sorted(POLICIES))})")
-    return POLICIES[name](**params)
+    return REGISTRY.get(name)(**params)
 
 
 def frontiers(m: EpisodeMap, min_cells: int = 6, prior: bool = True

@@ -31,8 +31,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from kgnav import se2
-from kgnav.geometry import OccupancyGrid, occupancy_from_scans
+from kgnav.common import se2
+from kgnav.memory.geometry import OccupancyGrid, occupancy_from_scans
 
 
 @dataclass(frozen=True)
@@ -103,7 +103,7 @@ class Verdict:
 
 
 class StoredGeometry:
-    """A stored model's occupancy (:func:`~kgnav.geometry.occupancy`) prepared for verifying
+    """A stored model's occupancy (:func:`~kgnav.memory.geometry.occupancy`) prepared for verifying
     hypotheses: the distance from every cell to the nearest stored obstacle, and its gradient
     (for aligning scans to it)."""
 

@@ -1,13 +1,13 @@
 """``StateCreator``: one abstract state ``s = <F_s, C_s, {F_s,c}>`` per step.
 
 ``F_s`` comes from the :class:`~kgnav.agent.features.FeatureExtractor`; ``C_s`` and the per-object
-``F_s,c`` from the segmentation: each segment becomes a :class:`~kgnav.model.Detection` whose
+``F_s,c`` from the segmentation: each segment becomes a :class:`~kgnav.memory.model.Detection` whose
 position is the paper's "depth of the bounding-box centroid added to the agent pose" (here the
 median depth over the segment's pixels, which stays on the object when the box centre does not,
 e.g. between a chair's legs), its bbox and its distance from the agent, plus how far its
 visible surface extends around that point (``radius``: large objects seen from different
 sides then stay one object) and the segmenter's score. The state also gets its range profile
-(:mod:`kgnav.geometry`): the free space it saw, a few dozen numbers.
+(:mod:`kgnav.memory.geometry`): the free space it saw, a few dozen numbers.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from kgnav.agent.camera import Camera, to_frame
-from kgnav.geometry import DEFAULT_BINS, ScanGeometry
-from kgnav.model import Detection
+from kgnav.memory.geometry import DEFAULT_BINS, ScanGeometry
+from kgnav.memory.model import Detection
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ class StateCreator:
         return 0.5 * math.hypot(d1 - d0, l1 - l0)
 
     def ranges(self, depth: np.ndarray, columns: np.ndarray | None = None) -> np.ndarray:
-        """The frame's range profile (:class:`kgnav.geometry.ScanGeometry`, ``self.scan``);
+        """The frame's range profile (:class:`kgnav.memory.geometry.ScanGeometry`, ``self.scan``);
         ``columns``: the per-column ranges if already computed
         (:meth:`Camera.column_ranges`)."""
         if columns is None:

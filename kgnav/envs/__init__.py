@@ -1,4 +1,4 @@
-"""Any simulator behind one documented interface (README, *Bring your own simulator*).
+"""Any simulator behind one documented interface (docs/bring-your-own-simulator.md).
 
 * :mod:`kgnav.envs.spec`: what an environment declares (:class:`EnvSpec`: camera, actions,
   class vocabulary);

@@ -9,8 +9,8 @@
 from __future__ import annotations
 
 from kgnav.envs.registry import EnvOptions, register_env
-from kgnav.evaluation.sources import scene_source
 from kgnav.sim.env import ObjectNavEnv
+from kgnav.sim.sources import scene_source
 
 __all__ = ["KgnavScenes"]
 

@@ -73,6 +73,13 @@ GROUND_TRUTH_HOOKS: dict[str, str] = {
 }
 
 
+def episode_seed(seed: int, scene: int, episode: int) -> int:
+    """The seed a run passes to ``reset`` for episode ``episode`` of scene ``scene``: one
+    independent stream per episode, so a variant, a worker or a resumed run meets the same
+    episode whatever ran before it."""
+    return int(np.random.SeedSequence([seed, scene, episode]).generate_state(1)[0])
+
+
 class EnvProtocolError(EnvSpecError):
     """An environment broke the protocol (a missing key, a wrong dtype or shape)."""
 

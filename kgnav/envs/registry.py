@@ -23,11 +23,11 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from importlib.metadata import entry_points
 from typing import Protocol
 
 from kgnav.envs.protocol import NavEnv
 from kgnav.errors import KgnavError
+from kgnav.registry import Registry
 
 
 @dataclass(frozen=True)
@@ -62,38 +62,20 @@ class EnvSuite(Protocol):
         ...
 
 
-#: Environment factories by name, ``factory(options: EnvOptions) -> EnvSuite``.
-ENVS: dict[str, Callable[[EnvOptions], EnvSuite]] = {}
-# modules that register environments on import, imported on the first unknown name (kgnav's
-# simulator is not imported by code that never asks for it)
-_PLUGINS = ("kgnav.envs.kgnav_sim",)
+#: Environments by name, ``factory(options: EnvOptions) -> EnvSuite``: kgnav's own simulator
+#: (a plug-in module, so code that never asks for it does not import it) and the installed
+#: packages' ``kgnav.envs`` entry points.
+REGISTRY: Registry[Callable[[EnvOptions], EnvSuite]] = Registry(
+    "environment", plugins=("kgnav.envs.kgnav_sim",), entry_point_group="kgnav.envs")
+ENVS = REGISTRY.factories
+register_env = REGISTRY.register
 
 DEFAULT_ENV = "kgnav"
 
 
-def register_env(*names: str):
-    """Decorator adding an environment factory under one or more names to :data:`ENVS`."""
-
-    def deco(factory):
-        for n in names:
-            ENVS[n] = factory
-        return factory
-
-    return deco
-
-
 def env_names() -> list[str]:
     """Every registered environment name, the plugins' and entry points' included."""
-    for mod in _PLUGINS:
-        importlib.import_module(mod)
-    for ep in entry_points(group="kgnav.envs"):
-        if ep.name not in ENVS:
-            try:
-                ENVS[ep.name] = ep.load()
-            except Exception as e:  # a broken plug-in must not hide the others
-                raise KgnavError(f"environment {ep.name!r} ({ep.value}) does not load: "
-                                 f"{type(e).__name__}: {e}") from None
-    return sorted(ENVS)
+    return REGISTRY.names()
 
 
 def find_env(name: str) -> Callable[[EnvOptions], EnvSuite]:
@@ -108,11 +90,7 @@ def find_env(name: str) -> Callable[[EnvOptions], EnvSuite]:
         if not callable(factory):
             raise KgnavError(f"environment {name!r} is not a factory (callable)")
         ENVS[name] = factory
-    if name not in ENVS:
-        env_names()
-    if name not in ENVS:
-        raise KgnavError(f"unknown environment {name!r} (known: {', '.join(sorted(ENVS))})")
-    return ENVS[name]
+    return REGISTRY.get(name)
 
 
 def make_env(name: str = DEFAULT_ENV, options: EnvOptions | None = None) -> EnvSuite:

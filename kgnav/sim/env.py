@@ -17,7 +17,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from kgnav.classes import OBJECT_CLASSES, class_id
+from kgnav.common.classes import OBJECT_CLASSES, class_id
 from kgnav.envs.spec import ActionSpec, CameraSpec, EnvSpec
 from kgnav.sim.dynamics import (
     ACTION_NAMES,

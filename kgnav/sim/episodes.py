@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from kgnav.classes import OBJECTNAV_CLASSES, class_id
+from kgnav.common.classes import OBJECTNAV_CLASSES, class_id
 from kgnav.errors import SceneFileError
 from kgnav.sim.house import GENERATOR, Scene, generate_house
 from kgnav.sim.house_v2 import GENERATOR_V2, generate_large_house
@@ -57,7 +57,7 @@ EPISODES_FORMAT = "kgnav-episodes"
 EPISODES_VERSION = 1
 #: Episodes per scene when none is asked for. ``val``'s 100 x 11 houses make a paired
 #: difference in success of 3 points significant when a quarter of the pairs disagree (see the
-#: README, "Enough episodes").
+#: docs/benchmark.md, "Enough episodes").
 DEFAULT_EPISODES_PER_SCENE = {"train": 50, "val": 100, "train-small": 50, "val-small": 20}
 MAX_STEPS = 500
 MIN_GEODESIC, MAX_GEODESIC = 1.0, 30.0

@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from kgnav.classes import OBJECTNAV_CLASSES
+from kgnav.common.classes import OBJECTNAV_CLASSES
 from kgnav.sim.house import (
     _CLASS_HUE,
     _PRIORS,

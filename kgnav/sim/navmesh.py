@@ -20,8 +20,8 @@ import cv2
 import numpy as np
 import skfmm
 
-from kgnav.classes import OBJECT_CLASSES
-from kgnav.sim.house import AGENT_RADIUS, GRID_RES, Scene, rasterize_box
+from kgnav.common.classes import OBJECT_CLASSES
+from kgnav.sim.scene import AGENT_RADIUS, GRID_RES, Scene, rasterize_box
 
 SUCCESS_DISTANCE = 1.0  # m, the paper's success threshold
 

@@ -29,7 +29,7 @@ import sys
 
 import numpy as np
 
-from kgnav.classes import OBJECT_CLASSES
+from kgnav.common.classes import OBJECT_CLASSES
 from kgnav.sim.house import GRID_RES, Scene
 
 CAMERA_HEIGHT = 0.88  # m (Habitat ObjectNav)
@@ -76,7 +76,7 @@ class Renderer:
 
     ``render(x, y, theta)`` returns ``(rgb uint8 (H,W,3), depth float32 (H,W), semantic int32
     (H,W,2))``; the semantic channels are class id (1-based index in
-    :data:`kgnav.classes.OBJECT_CLASSES`, 0 = wall/floor/ceiling) and object instance id
+    :data:`kgnav.common.classes.OBJECT_CLASSES`, 0 = wall/floor/ceiling) and object instance id
     (:attr:`ObjectInstance.id`, 0 = none). Depth is clipped to ``[min_depth, max_depth]``.
     """
 

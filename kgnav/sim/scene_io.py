@@ -20,8 +20,8 @@ import os
 from dataclasses import asdict
 from typing import Any
 
-from kgnav.atomic import atomic_open
-from kgnav.classes import OBJECT_CLASSES
+from kgnav.common.atomic import atomic_open
+from kgnav.common.classes import OBJECT_CLASSES
 from kgnav.errors import SceneFileError
 from kgnav.sim.house import (
     ROOM_KINDS,

@@ -1,0 +1,121 @@
+"""How faithful a stored memory is to the house it describes, scored against ground truth.
+
+A change to association, evidence or merging should show on the memory itself, not only in
+navigation scores. For the models of one house (each in the start frame of the episode that
+created it, mapped to the world with ``frame``):
+
+* **precision**: share of model objects within ``tolerance`` (0.5 m) of the footprint of a real
+  instance of their class; ``trusted_precision``: the same over the objects the agent would
+  trust as goals (belief at least 0.5, :mod:`kgnav.memory.evidence`);
+* **copies**: model objects per real instance they stand for (each object counts for its
+  nearest instance), averaged over the instances represented; 1.0 is one node per object;
+* **recall**: share of the real instances the episodes *saw* (ground truth: visible in some
+  frame, large enough and near enough to be segmented) that some model object stands for;
+* **models**: how many separate models the house's memory is made of.
+
+>>> from kgnav.sim.house import ObjectInstance
+>>> chair = ObjectInstance(1, "chair", 0, 0.0, 0.0, 0.5, 0.5, 0.0, 0.9, (0, 0, 0))
+>>> s = score_objects([("chair", 0.6, 0.2, 1.0), ("chair", 0.3, 0.9, 1.0),
+...                    ("bed", 5.0, 5.0, 0.1)], [chair], seen={1})
+>>> s["objects"], s["precision"], s["copies"], s["recall"], s["trusted_precision"]
+(3, 0.667, 2.0, 1.0, 1.0)
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Iterable
+
+from kgnav.common import se2
+from kgnav.memory.evidence import belief, object_evidence
+from kgnav.memory.model import AbstractModel
+
+TOLERANCE = 0.5  # m from a real instance's footprint
+
+
+def score_objects(objects: Iterable[tuple], instances,
+                  seen: set[int] | None = None, tolerance: float = TOLERANCE) -> dict:
+    """Score ``objects`` — (class, world x, world y, belief[, views]) — against real
+    ``instances`` (:class:`~kgnav.sim.house.ObjectInstance`). ``seen``: ids of the instances
+    the episodes saw (recall is over those; None: all). ``false_by_views``: how many objects
+    stand for no real instance, by how many states saw them."""
+    objects = list(objects)
+    by_cls: dict[str, list] = {}
+    for inst in instances:
+        by_cls.setdefault(inst.cls, []).append(inst)
+    matched, trusted, trusted_ok = 0, 0, 0
+    stands_for: Counter = Counter()
+    false: Counter = Counter()
+    for cls, x, y, b, *views in objects:
+        best = min(((inst.distance_to(x, y), inst.id) for inst in by_cls.get(cls, ())),
+                   default=(math.inf, None))
+        ok = best[0] <= tolerance
+        matched += ok
+        if ok:
+            stands_for[best[1]] += 1
+        elif views:
+            false["1" if views[0] <= 1 else "2-3" if views[0] <= 3 else "4+"] += 1
+        if b >= 0.5:
+            trusted += 1
+            trusted_ok += ok
+    pool = set(seen) if seen is not None else {i.id for i in instances}
+    found = len(pool & set(stands_for))
+    return {
+        "objects": len(objects),
+        "trusted_objects": trusted,
+        "precision": _ratio(matched, len(objects)),
+        "trusted_precision": _ratio(trusted_ok, trusted),
+        "copies": _ratio(sum(stands_for.values()), len(stands_for)),
+        "instances_seen": len(pool),
+        "represented": len(stands_for),
+        "recall": _ratio(found, len(pool)),
+        "false_by_views": {k: false[k] for k in ("1", "2-3", "4+")},
+    }
+
+
+def _ratio(a: float, b: float) -> float | None:
+    return round(a / b, 3) if b else None
+
+
+def model_objects(model: AbstractModel, frame) -> list[tuple[str, float, float, float, int]]:
+    """Every object of ``model`` as (class, world x, world y, belief, views); ``frame`` is the
+    world pose of the model's frame origin (the start of the episode that created it)."""
+    ev = object_evidence(model)
+    out = []
+    for o in model.objects():
+        d = model.graph.nodes[o]
+        x, y = se2.apply_to_point(frame, d["x"], d["y"])
+        out.append((d["cls"], x, y, belief(ev[o]), d["n_views"]))
+    return out
+
+
+def score_memory(models: Iterable[tuple[AbstractModel, tuple]], instances,
+                 seen: set[int] | None = None) -> dict:
+    """Score the models of one house together (each with its world frame)."""
+    models = list(models)
+    objs = [o for m, frame in models for o in model_objects(m, frame)]
+    return {"models": len(models), **score_objects(objs, instances, seen)}
+
+
+def pooled(per_house: dict[str, dict]) -> dict:
+    """Object-weighted averages over houses, and the spread of models per house."""
+    def wavg(key, weight):
+        num = sum(h[key] * h[weight] for h in per_house.values() if h[key] is not None)
+        den = sum(h[weight] for h in per_house.values() if h[key] is not None)
+        return _ratio(num, den)
+
+    models = [h["models"] for h in per_house.values()]
+    return {
+        "houses": len(per_house),
+        "precision": wavg("precision", "objects"),
+        "trusted_precision": wavg("trusted_precision", "trusted_objects"),
+        "recall": wavg("recall", "instances_seen"),
+        "copies": _ratio(sum((h["copies"] or 0) * h["represented"] for h in per_house.values()),
+                         sum(h["represented"] for h in per_house.values())),
+        "false_by_views": dict(sum((Counter(h["false_by_views"]) for h in per_house.values()),
+                                   Counter())),
+        "models_per_house": dict(sorted(Counter(models).items())),
+        "houses_with_one_model": sum(m == 1 for m in models),
+        "objects": sum(h["objects"] for h in per_house.values()),
+    }

@@ -1,0 +1,118 @@
+"""Top-down pictures of a stored memory against the house it describes.
+
+A table of precision and copies says how cluttered a memory is; a picture says where: every
+object of every model of one house, placed in the world with the model's ground-truth frame,
+over the house drawn from above. Colour: the model it belongs to. Shape: a filled disc when it
+stands for a real instance of its class (within :data:`~kgnav.benchmark.fidelity.TOLERANCE`
+of one's footprint), a cross when it stands for nothing; large when the agent would trust it as
+a goal (belief at least 0.5), small when not.
+
+>>> from kgnav.sim.house import generate_house
+>>> from kgnav.memory.model import AbstractModel
+>>> scene = generate_house(1)
+>>> img = draw_memory(scene, [], ppm=10)
+>>> img.dtype, img.ndim
+(dtype('uint8'), 3)
+
+``kgnav memory-map RUN_DIR`` draws every house of a ``kgnav eval`` output directory.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from kgnav.benchmark import fidelity
+from kgnav.errors import KgnavError
+from kgnav.memory.model import AbstractModel
+from kgnav.sim.house import Scene
+from kgnav.sim.topdown import _MARGIN, draw_topdown, write_png
+
+#: Model colours (RGB), in model-id order; more models than colours reuse them.
+PALETTE = [(230, 25, 75), (60, 120, 216), (245, 130, 48), (145, 30, 180), (0, 130, 130),
+           (240, 50, 230), (128, 128, 0), (0, 0, 128), (170, 110, 40), (90, 90, 90)]
+
+
+def draw_memory(scene: Scene, models: Sequence[tuple[str, AbstractModel, tuple]],
+                path: str | os.PathLike[str] | None = None, ppm: float = 30.0) -> np.ndarray:
+    """Draw the objects of ``models`` — (id, model, world pose of its frame) — over ``scene``
+    from above; returns the RGB image and writes a PNG to ``path``."""
+    img = draw_topdown(scene, labels=False, ppm=ppm).copy()
+
+    def px(x, y):
+        return (int(round(_MARGIN + x * ppm)), int(round(_MARGIN + (scene.depth - y) * ppm)))
+
+    objs = []
+    for k, (_mid, model, frame) in enumerate(models):
+        color = PALETTE[k % len(PALETTE)]
+        for cls, x, y, b, views in fidelity.model_objects(model, frame):
+            real = fidelity.score_objects([(cls, x, y, b)], scene.objects)["precision"] == 1.0
+            objs.append((cls, x, y, b, views))
+            r = max(3, int(0.14 * ppm)) if b >= 0.5 else max(2, int(0.07 * ppm))
+            if real:
+                cv2.circle(img, px(x, y), r, color, -1, cv2.LINE_AA)
+                cv2.circle(img, px(x, y), r, (255, 255, 255), 1, cv2.LINE_AA)
+            else:
+                p = np.array(px(x, y))
+                cv2.line(img, tuple(p - r), tuple(p + r), color, 2, cv2.LINE_AA)
+                cv2.line(img, (p[0] - r, p[1] + r), (p[0] + r, p[1] - r), color, 2, cv2.LINE_AA)
+    s = fidelity.score_objects(objs, scene.objects)
+    lines = [f"{scene.name}: {len(models)} model(s)",
+             f"{len(objs)} objects, {len(scene.objects)} real",
+             f"precision {s['precision']}, trusted {s['trusted_precision']}",
+             f"copies {s['copies']}",
+             "disc: real, cross: phantom, large: trusted"]
+    band = np.full((14 * len(lines) + 6, img.shape[1], 3), 255, np.uint8)
+    for i, text in enumerate(lines):
+        cv2.putText(band, text, (4, 13 + 14 * i), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (0, 0, 0), 1,
+                    cv2.LINE_AA)
+    img = np.vstack([band, img])
+    if path is not None:
+        write_png(img, path)
+    return img
+
+
+def draw_run(run_dir: str | os.PathLike[str], variant: str = "si",
+             out: str | os.PathLike[str] | None = None, ppm: float = 30.0) -> list[Path]:
+    """Draw the memory ``variant`` left in a ``kgnav eval`` output directory, one PNG per
+    house (``pre-explored`` for the hp/sp memory) into ``out`` (default: ``RUN/memory``).
+    Returns the paths written."""
+    from kgnav.benchmark.runner import _house_of
+    from kgnav.memory.store import ModelStore
+    from kgnav.sim.sources import scene_source
+
+    run = Path(run_dir)
+    try:
+        cfg = json.loads((run / "config.json").read_text(encoding="utf-8"))
+        source = scene_source(cfg["split"], cfg.get("scenes_dir"))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise KgnavError(f"{run}: not a kgnav eval output directory ({exc})") from None
+    store_dir = run / "memory" / variant
+    if not store_dir.is_dir():
+        have = sorted(p.name for p in (run / "memory").glob("*") if p.is_dir())
+        raise KgnavError(f"{store_dir}: no stored memory for {variant!r} "
+                         f"(there: {', '.join(have) or 'none'})")
+    models, problems = ModelStore(store_dir).load_all()
+    if problems:
+        raise KgnavError(f"{store_dir}: {problems[0]}")
+    out_dir = Path(out) if out is not None else run / "memory"
+    written = []
+    for k in range(len(source)):
+        scene = source.scene(k)
+        mine = sorted((mid, m) for mid, m in models.items() if _house_of(mid) == scene.name)
+        if not mine:
+            continue
+        episodes = source.episodes(k, cfg.get("episodes"))
+        framed = []
+        for mid, m in mine:
+            tag = mid.rpartition("-")[2]
+            framed.append((mid, m, episodes[0 if tag == "pre" else int(tag[1:])].start))
+        path = out_dir / f"{variant}_{scene.name}.png"
+        draw_memory(scene, framed, path, ppm)
+        written.append(path)
+    return written

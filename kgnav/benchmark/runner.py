@@ -1,0 +1,885 @@
+"""Run agent variants over a split and write ``episodes.jsonl`` and ``summary.json``.
+
+Episode order (fixed, so results are reproducible): rounds ``r = 0, 1, ...``; round ``r`` runs
+episode ``r`` of every selected scene, scenes in index order. Variants with memory see, during a
+round, the store as it was at the round's start; at the round's end each episode's model is
+merged into the model it relocated into (or stored as a new model), in scene order. Scenes of a
+round are independent, so an engine (:mod:`kgnav.benchmark.engines`: ``workers`` local
+processes, or Ray on a cluster) may run them in parallel with results identical to one
+process. Every episode is seeded from ``(seed, scene, episode)``: all variants meet the
+same segmenter noise, which makes their comparison paired.
+
+The scenes come from a registered environment (``EvalConfig.env``, :mod:`kgnav.envs`; kgnav's
+own simulator by default) through the environment protocol only: the agent gets the camera,
+class vocabulary and actions the environment declares, and metrics that need ground truth the
+environment does not offer are recorded as missing (``None``).
+
+>>> cfg = EvalConfig(split="val", variants=("oracle",), scenes=1, episodes=1)
+>>> records, summary = run_eval(cfg, out=None, progress=False)
+>>> records[0]["variant"], records[0]["success"], summary["oracle"]["episodes"]
+('oracle', True, 1)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import tempfile
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from kgnav.agent.camera import Camera
+from kgnav.agent.features import loop_threshold, make_extractor
+from kgnav.agent.loop import AgentConfig, ObjectNavAgent
+from kgnav.agent.memory import Memory
+from kgnav.agent.noise_segmenters import GROUND_TRUTH_SEGMENTERS
+from kgnav.agent.oracle import OracleAgent
+from kgnav.agent.policy import cooccurrence, make_policy
+from kgnav.agent.segmentation import make_segmenter
+from kgnav.benchmark import fidelity
+from kgnav.benchmark.engines import Engine, check_settings, make_engine
+from kgnav.benchmark.failures import FAILURE_CLASSES, classify
+from kgnav.benchmark.memory_update import absorb as _absorb
+from kgnav.benchmark.stats import paired_differences
+from kgnav.benchmark.variants import VARIANTS, Variant, with_policy
+from kgnav.common import se2
+from kgnav.common.atomic import atomic_open
+from kgnav.envs import (
+    DEFAULT_ENV,
+    EnvOptions,
+    EnvProtocolError,
+    EnvSpec,
+    EnvSuite,
+    NavEnv,
+    check_env,
+    check_observation,
+    find_env,
+    make_env,
+)
+from kgnav.envs.protocol import episode_seed
+from kgnav.errors import KgnavError
+from kgnav.memory.evidence import forget
+from kgnav.memory.model import AbstractModel
+from kgnav.memory.store import ModelStore
+from kgnav.sim.episodes import SPLITS
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """What to run. ``env``: a registered environment (:mod:`kgnav.envs`; ``kgnav``, the
+    embedded simulator, by default); ``split``: a built-in split, or ``scenes_dir``: a
+    directory of your own (``kgnav scenes generate``), passed to the environment in
+    :class:`~kgnav.envs.EnvOptions`; ``scenes``: the first K scenes (None: all); ``episodes``:
+    per scene (None: the split's default, or all of a directory's); ``threshold``: relocation
+    cosine distance (None: the extractor's calibrated value); ``actuation_noise`` /
+    ``odometry_noise``: the simulator's motion and pose-sensor noise (off, as in ObjectNav).
+    ``workers``, ``engine`` and ``address`` (:data:`EXECUTION`) say how to run it, never
+    what comes out: ``engine`` ``local`` (``workers`` processes) or ``ray`` (a Ray instance
+    with ``workers`` CPUs, or the cluster at ``address``)."""
+
+    split: str = "val"
+    scenes_dir: str | None = None
+    variants: tuple[str, ...] = ("ans",)
+    scenes: int | None = None
+    episodes: int | None = None
+    workers: int = 1
+    segmenter: str = "learned"
+    extractor: str = "auto"
+    threshold: float | None = None
+    seed: int = 0
+    width: int = 160
+    height: int = 120
+    pre_explore_steps: int = 1500
+    max_steps: int = 500  # per episode (the task's 500; lower only for quick checks)
+    actuation_noise: float = 0.0
+    odometry_noise: float = 0.0
+    forget_below: float = 0.2  # stored objects whose belief falls below this are forgotten
+    forget_label_share: float = 0.5  # ... and those whose place mostly gave another class
+    preset: str = "default"  # the name of the agent settings (recorded in config.json)
+    show: tuple[int, int] | None = None  # (scene, episode) to draw from above per variant
+    policy: str | None = None  # global policy of ans/si (see variants.with_policy)
+    agent: AgentConfig = field(default_factory=AgentConfig)
+    engine: str = "local"
+    address: str | None = None
+    env: str = DEFAULT_ENV
+    encoder_weights: str | None = None  # kgnav-encoder's weight file (None: the shipped one)
+
+    def __post_init__(self):
+        find_env(self.env)  # a one-line error for an unknown or broken one
+        if self.env == "kgnav" and self.scenes_dir is None and self.split not in SPLITS:
+            raise KgnavError(f"unknown split {self.split!r} (known: {', '.join(SPLITS)})")
+        if self.actuation_noise < 0 or self.odometry_noise < 0:
+            raise KgnavError("noise levels must be >= 0")
+        for v in self.variants:
+            if v not in VARIANTS:
+                raise KgnavError(f"unknown variant {v!r} (known: {', '.join(VARIANTS)})")
+        check_settings(self.engine, self.workers, self.address)
+        if self.encoder_weights is not None and self.extractor not in ("auto", ENCODER):
+            raise KgnavError(f"encoder weights are for extractor {ENCODER!r}, not "
+                             f"{self.extractor!r}")
+
+    @property
+    def env_options(self) -> EnvOptions:
+        return EnvOptions(self.split, self.scenes_dir, self.width, self.height, self.max_steps,
+                          self.actuation_noise, self.odometry_noise)
+
+    @property
+    def suite(self) -> EnvSuite:
+        """The environment's scenes (built once per process)."""
+        key = ("suite", self.env, self.env_options)
+        if key not in _CACHE:
+            _CACHE[key] = make_env(self.env, self.env_options)
+        return _CACHE[key]
+
+    @property
+    def source_name(self) -> str:
+        return self.scenes_dir if self.scenes_dir is not None else self.split
+
+    @property
+    def scene_indices(self) -> list[int]:
+        n = len(self.suite)
+        return list(range(min(self.scenes, n) if self.scenes else n))
+
+
+#: The fields of :class:`EvalConfig` that say how a run executes; they never change its results
+#: (``config.json`` keeps them apart, under ``execution``).
+EXECUTION = ("workers", "engine", "address")
+
+
+ENCODER = "kgnav-encoder"
+
+
+def resolve_extractor(name: str, weights: str | None = None) -> str:
+    """``auto`` → the learned encoder when it loads (``weights``: its weight file; None: the
+    shipped one), else the OpenCV descriptor. With ``weights`` the encoder must load."""
+    if name != "auto":
+        return name
+    if weights is not None:
+        return ENCODER
+    try:
+        make_extractor(ENCODER)
+        return ENCODER
+    except KgnavError:
+        return "opencv-gist"
+
+
+# ---------------------------------------------------------------------- per-process state
+# Environments and extractors are kept per process (forked workers inherit them); ``_ROUND`` is
+# the round's context (memory snapshot, co-occurrence) an engine hands each task.
+_CACHE: dict = {}
+_ROUND: dict = {}
+
+
+def _env(cfg: EvalConfig, scene: int) -> NavEnv:
+    key = ("env", cfg.env, cfg.env_options, scene, cfg.episodes)
+    if key not in _CACHE:
+        env = cfg.suite.make(scene, cfg.episodes)
+        check_env(env, cfg.env)
+        _CACHE[key] = env
+    return _CACHE[key]
+
+
+def scene_name(env: NavEnv, cfg: EvalConfig, scene: int) -> str:
+    """The environment's name for a scene (hook ``scene_name``), else ``<env>-<k>``; characters
+    a model id cannot hold become ``_`` (models are named after their scene).
+
+    >>> scene_name(object(), EvalConfig(env="kgnav.envs.kgnav_sim:KgnavScenes"), 3)
+    'kgnav.envs.kgnav_sim_KgnavScenes-03'
+    """
+    name = getattr(env, "scene_name", None) or f"{cfg.env}-{scene:02d}"
+    return re.sub(r"[^A-Za-z0-9_.+-]", "_", str(name))[:100]
+
+
+def _extractor(name: str, weights: str | None = None):
+    """The extractor ``name`` (kgnav-encoder with ``weights`` when given), once per process."""
+    key = ("extractor", name, weights)
+    if key not in _CACHE:
+        _CACHE[key] = (make_extractor(name, weights=weights)
+                       if weights is not None and name == ENCODER else make_extractor(name))
+    return _CACHE[key]
+
+
+def _threshold(cfg: EvalConfig, extractor) -> float:
+    if cfg.threshold is not None:
+        return float(cfg.threshold)
+    return loop_threshold(extractor)
+
+
+def _make_agent(cfg: EvalConfig, variant: Variant, env: NavEnv, memory: Memory | None,
+                extractor_name: str):
+    spec = env.env_spec
+    if variant.oracle:
+        missing = [h for h in ("navigable_map", "world_pose") if not hasattr(env, h)]
+        if missing:
+            raise EnvProtocolError(f"variant oracle needs the environment's ground truth "
+                                   f"({', '.join(missing)}); environment {cfg.env!r} has none")
+        return OracleAgent(env, step=spec.actions.step_m, turn_deg=spec.actions.turn_deg)
+    policy = make_policy(variant.policy)
+    if variant.policy == "semantic":
+        policy.cooccurrence_ = _ROUND.get("cooccurrence", {})
+    config = replace(cfg.agent, strategy=variant.strategy)
+    return ObjectNavAgent.for_env(spec, _segmenter(cfg, spec),
+                                  _extractor(extractor_name, cfg.encoder_weights),
+                                  policy=policy, memory=memory, config=config)
+
+
+def _segmenter(cfg: EvalConfig, spec: EnvSpec):
+    """``cfg.segmenter``; a ground-truth one gets the environment's camera and vocabulary."""
+    if cfg.segmenter not in GROUND_TRUTH_SEGMENTERS:
+        return make_segmenter(cfg.segmenter, cfg.seed)
+    if not spec.semantic:
+        raise EnvProtocolError(f"segmenter {cfg.segmenter!r} needs the ground-truth semantic "
+                               f"frame, which environment {spec.name!r} does not provide "
+                               f"(use --segmenter learned)")
+    cam = Camera.from_spec(spec.camera)
+    return make_segmenter(cfg.segmenter, cfg.seed, hfov_deg=cam.hfov_deg,
+                          min_depth=cam.min_depth, max_depth=cam.max_depth,
+                          classes=spec.classes)
+
+
+# ---------------------------------------------------------------------- one episode
+@dataclass
+class Outcome:
+    """An episode's record, and what it gives the memory: its model, the stored model it
+    relocated into (with the episode -> model transform), verified bridges to other stored
+    models (id -> episode -> model transform), and the real instances it saw (ids)."""
+
+    record: dict
+    model: AbstractModel | None = None
+    transform: tuple[float, float, float] | None = None
+    matched: str | None = None
+    bridges: dict = field(default_factory=dict)
+    seen: set = field(default_factory=set)
+    files: dict = field(default_factory=dict)  # path -> bytes, for the caller to write
+
+
+#: An instance counts as seen by an episode when this many of its pixels lie within SEEN_RANGE.
+SEEN_PIXELS, SEEN_RANGE = 50, 3.5
+
+
+def seen_instances(obs) -> set[int]:
+    """Ground-truth instances visible in a frame, large and near enough to be segmented."""
+    sem = obs.get("semantic")
+    if sem is None:
+        return set()
+    ids = sem[..., 1][obs["depth"] <= SEEN_RANGE]
+    counts = np.bincount(ids.ravel())
+    return {int(i) for i in np.flatnonzero(counts >= SEEN_PIXELS) if i > 0}
+
+
+def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, round_: int,
+                extractor_name: str, topdown: str | None = None) -> Outcome:
+    """One episode of ``variant``; ``topdown``: where to draw it from above (PNG)."""
+    env = _env(cfg, scene)
+    spec = env.env_spec
+    memory = _ROUND.get("memory") if variant.memory else None
+    agent = _make_agent(cfg, variant, env, memory, extractor_name)
+    seed = episode_seed(cfg.seed, scene, episode)
+    obs, info = env.reset(seed=seed, options={"episode": episode})
+    check_observation(obs, spec)
+    goal = spec.class_name(int(np.asarray(obs["objectgoal"]).reshape(-1)[0]))
+    name = scene_name(env, cfg, scene)
+    agent.reset(goal, seed=seed, scene=name, episode=scene * 1000 + episode,
+                model_id=f"{name}-e{episode:03d}")
+    seen = seen_instances(obs) if variant.learns else set()
+    done, steps = False, 0
+    while not done:
+        obs, _r, term, trunc, info = env.step(agent.act(obs))
+        check_observation(obs, spec)
+        steps += 1
+        done = term or trunc
+        if variant.learns:
+            seen |= seen_instances(obs)
+    if "success" not in info:
+        raise EnvProtocolError(f"environment {spec.name!r}: the last step's info has no "
+                               f"'success'")
+
+    gt = _GroundTruth(env, name, episode)
+    if topdown is not None:
+        _draw(env, agent, topdown)
+    reloc = agent.relocation_
+    record = {
+        "variant": variant.name,
+        "scene": name,
+        "episode": episode,
+        "episode_id": info.get("episode_id"),
+        "round": round_,
+        "goal": goal,
+        "success": bool(info["success"]),
+        "spl": _metric(info, "spl"),
+        "softspl": _metric(info, "softspl"),
+        "dts": _metric(info, "dts"),
+        "steps": steps,
+        "path_length": _metric(info, "path_length"),
+        "shortest_path_length": _metric(info, "shortest_path_length"),
+        "relocated": reloc is not None,
+    }
+    target_source, target_err = None, math.inf
+    if not variant.oracle:
+        objects = [t for t in agent.log_.targets if t[1] != "explore"]
+        if objects:
+            _step, target_source, tx, ty, _oid = objects[-1]
+            target_err = gt.target_error(tx, ty)
+        record["stop_reason"] = agent.log_.stop_reason
+        # every object the agent headed for: when, why, and how far from a real goal
+        record["object_targets"] = [
+            [t[0], t[1], None if (e := gt.target_error(t[2], t[3])) is None else round(e, 2)]
+            for t in objects]
+        record["memory_goal_step"] = next((t[0] for t in objects if t[1] == "memory"), None)
+        record["target_source"] = target_source
+        record["target_error"] = (None if target_err is None or math.isinf(target_err)
+                                  else round(target_err, 3))
+    record["failure"] = _failure(record, variant, target_source, target_err)
+    if not variant.oracle and agent.log_.undone:
+        record["undone"] = [_relocation_fields(gt, u) for u in agent.log_.undone]
+    if reloc is not None:
+        record["relocation"] = {"distance": round(float(reloc.distance), 4),
+                                **_relocation_fields(gt, reloc)}
+    rel = getattr(agent, "relocalizer", None)
+    into = agent.mergeable() if variant.learns else None  # (the merge checks count decisions)
+    if rel is not None:  # why hypotheses were accepted or refused, and bridges found
+        record["relocation_decisions"] = dict(sorted(rel.decisions.items()))
+    if variant.learns:
+        bridges = {}
+        if reloc is not None:
+            record["relocation"]["merged"] = into is reloc
+            final = rel.final.get(reloc.model_id)
+            if final is not None:  # the whole episode's verdict before merging
+                record["relocation"]["final"] = {
+                    "reason": final.reason, "inliers": round(final.inliers, 3),
+                    "conflicts": round(final.conflicts, 3), "points": final.points,
+                    **_relocation_error(gt, reloc.model_id, final.transform, reloc.at)}
+        if into is not None and into.late:  # found from the whole episode at its end
+            record["late_merge"] = _relocation_fields(gt, into)
+        if into is not None and rel.bridges:
+            bridges = {mid: v.transform for mid, v in rel.bridges.items()}
+            record["bridges"] = [
+                {"model": mid, **_relocation_error(gt, mid, T, into.at)}
+                for mid, T in sorted(bridges.items())]
+        return Outcome(record, agent.model_, into.transform if into else None,
+                       into.model_id if into else None, bridges, seen)
+    return Outcome(record)
+
+
+def _metric(info: dict, key: str) -> float | None:
+    """A metric the environment reported, or None when it offers none."""
+    v = info.get(key)
+    return None if v is None else float(v)
+
+
+def _failure(record: dict, variant: Variant, target_source: str | None,
+             target_err: float | None) -> str | None:
+    """The failure class (:mod:`kgnav.benchmark.failures`); None for a success, or when the
+    ground truth it needs (the target's distance to a real goal, DTS) is missing."""
+    if record["success"]:
+        return None
+    if variant.oracle:
+        return "Misc"
+    if target_source is None:
+        return "Exploration"
+    if target_err is None or record["dts"] is None:
+        return None
+    return classify(False, record["dts"], target_source, target_err)
+
+
+class _GroundTruth:
+    """The optional ground-truth hooks of an environment for one episode
+    (:data:`kgnav.envs.GROUND_TRUTH_HOOKS`); every answer is None where a hook is missing."""
+
+    def __init__(self, env: NavEnv, name: str, episode: int):
+        self.env, self.name, self.episode = env, name, episode
+
+    def start(self, i: int):
+        f = getattr(self.env, "episode_start", None)
+        return None if f is None else f(i)
+
+    def target_error(self, x: float, y: float) -> float | None:
+        """L2 distance (m) from an episode-frame point to the nearest real goal instance."""
+        env = self.env
+        l2 = getattr(env, "l2_distance_to_goal", None)
+        if l2 is None:
+            return None
+        to_world = getattr(env, "start_frame_to_world", None)
+        if to_world is not None:
+            wx, wy = to_world(x, y)
+        else:
+            start = self.start(self.episode)
+            if start is None:
+                return None
+            wx, wy = se2.apply_to_point(start, x, y)
+        return float(l2(wx, wy))
+
+
+def _draw(env: NavEnv, agent, path: str) -> None:
+    draw = getattr(env, "topdown", None)
+    if draw is None:  # the environment cannot draw itself from above
+        return
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    m = getattr(agent, "map_", None)
+    if m is None:
+        draw(path)
+        return
+    draw(path, agent_map=m.explored, map_resolution=m.resolution, map_origin=m.corner)
+
+
+def _relocation_fields(gt: _GroundTruth, reloc) -> dict:
+    """What ``episodes.jsonl`` says of a relocation, kept or undone: when and into which
+    model, whether that model is of this house, its geometric verification (share of inlier
+    points, conflicts, points judged), its landmark support and its error."""
+    out = {"step": reloc.step, "model": reloc.model_id,
+           "same_house": _house_of(reloc.model_id) == gt.name,
+           "checked": reloc.checked, "supported": reloc.supported}
+    if reloc.inliers is not None:
+        out.update(inliers=reloc.inliers, conflicts=reloc.conflicts, points=reloc.points)
+    return {**out, **_relocation_error(gt, reloc.model_id, reloc.transform, reloc.at)}
+
+
+def _house_of(model_id: str) -> str:
+    return model_id.rpartition("-")[0]
+
+
+def _model_frame(gt: _GroundTruth, model_id: str):
+    """World pose of a model's frame: models are named ``<house>-e<episode>`` (or
+    ``<house>-pre``) and live in that episode's start frame. None for another house's, or
+    when the environment does not say where its episodes start."""
+    house, _, tag = model_id.rpartition("-")
+    if house != gt.name:
+        return None
+    return gt.start(0 if tag == "pre" else int(tag[1:]))
+
+
+def _relocation_error(gt: _GroundTruth, model_id: str, transform, at) -> dict:
+    """How far off a frame transform (episode -> model) is, from ground truth: the error (m)
+    of the agent's own position ``at`` mapped into the model frame, and the heading error
+    (degrees). Empty for another house's model, or without ground truth."""
+    frame = _model_frame(gt, model_id)
+    if frame is None or at is None:
+        return {}
+    truth = se2.compose(se2.inverse(frame), gt.start(gt.episode))
+    ex, ey = se2.apply_to_point(transform, *at)
+    tx, ty = se2.apply_to_point(truth, *at)
+    return {"error_m": round(math.hypot(ex - tx, ey - ty), 3),
+            "error_deg": round(math.degrees(se2.angle_diff(transform[2], truth[2])), 2)}
+
+
+def _run_task(context: dict, task) -> Outcome:
+    """An episode with the round's ``context``; its picture from above comes back as bytes
+    (it may run on another machine) for :func:`run_variant` to write."""
+    _ROUND.clear()
+    _ROUND.update(context)
+    *args, topdown = task
+    if topdown is None:
+        return run_episode(*args)
+    with tempfile.TemporaryDirectory() as tmp:
+        png = Path(tmp) / "topdown.png"
+        outcome = run_episode(*args, topdown=str(png))
+        if png.is_file():  # not every environment can draw itself from above
+            outcome.files[topdown] = png.read_bytes()
+    return outcome
+
+
+def pre_explore(cfg: EvalConfig, scene: int, extractor_name: str
+                ) -> tuple[AbstractModel, set[int]]:
+    """One long frontier exploration of a house from its first episode's start: the
+    pre-explored model of ``hp``/``sp`` (the paper explores 10000 steps; here until nothing is
+    left to explore or ``cfg.pre_explore_steps``), and the real instances it saw."""
+    env = _env(cfg, scene)
+    # no look-around: it finds a goal sooner, and the exploration turns all round anyway; with
+    # it, a walk of val_00 ended walled in by its own collision marks after 51 steps
+    agent = _make_agent(replace(cfg, agent=replace(cfg.agent, look_around=False)),
+                        VARIANTS["ans"], env, None, extractor_name)
+    # an environment with a writable step limit explores longer than one episode
+    saved = getattr(env, "max_steps", None)
+    if saved is not None:
+        env.max_steps = cfg.pre_explore_steps
+    try:
+        seed = episode_seed(cfg.seed, scene, 10**6)
+        obs, _info = env.reset(seed=seed, options={"episode": 0})
+        name = scene_name(env, cfg, scene)
+        agent.reset(None, seed=seed, scene=name, episode=scene * 1000 + 999,
+                    model_id=f"{name}-pre")
+        seen = seen_instances(obs)
+        idle = 0
+        stop = agent.actions.index("stop")
+        for _ in range(cfg.pre_explore_steps):
+            action = agent.act(obs)
+            # (the look-around at the start has no target either)
+            idle = idle + 1 if agent._target is None and agent.step_ > agent.actions.full_turn \
+                else 0
+            # a full turn with nothing left to explore
+            if idle >= agent.actions.full_turn or action == stop:
+                break
+            obs, _r, term, trunc, _info = env.step(action)
+            seen |= seen_instances(obs)
+            if trunc or term:
+                break
+    finally:
+        if saved is not None:
+            env.max_steps = saved
+    return agent.model_, seen
+
+
+def _pre_task(_context, task) -> tuple[AbstractModel, set[int]]:
+    return pre_explore(*task)
+
+
+# ---------------------------------------------------------------------- scheduling
+def _worker_init() -> None:
+    _torch_threads(1)
+
+
+def _torch_threads(n: int) -> int:
+    """Set torch's intra-op threads; returns the previous count."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    return before
+
+
+class _NoBar:
+    def update(self, n: int) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def _bar(total: int, desc: str, progress: bool):
+    if not progress:
+        return _NoBar()
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="ep", dynamic_ncols=True)
+
+
+def _episode_count(cfg: EvalConfig) -> list[int]:
+    """Episodes per selected scene."""
+    return [cfg.suite.episode_count(s, cfg.episodes) for s in cfg.scene_indices]
+
+
+def _rounds_per_call(engine: Engine, houses: int) -> int:
+    """Rounds one engine call may hold for a variant whose memory never changes between
+    rounds (``ans``, ``oracle``, the pre-explored ones): enough to give every CPU two episodes,
+    so a wide cluster is not idle waiting on a round of one episode per house. A variant that
+    learns runs round by round: each round sees the memory the previous ones left."""
+    return max(1, -(-2 * engine.slots() // max(houses, 1)))
+
+
+def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Path | None,
+                progress: bool = True, on_round: Callable[[list[dict]], None] | None = None,
+                engine: Engine | None = None) -> tuple[list[dict], dict | None]:
+    """All episodes of one variant, in the documented order, each round's on ``engine``
+    (default: one made from ``cfg`` for this call); returns their records and, for a variant
+    with memory, the fidelity of its memory at the end (:func:`memory_fidelity`)."""
+    if engine is None:
+        with make_engine(cfg.engine, cfg.workers, cfg.address, _worker_init) as engine:
+            return run_variant(cfg, variant, extractor_name, out, progress, on_round, engine)
+    scenes = cfg.scene_indices
+    counts = dict(zip(scenes, _episode_count(cfg), strict=True))
+    rounds = max(counts.values())
+    store_dir = out / "memory" / variant.name if (out is not None and variant.learns) else None
+    models: dict[str, AbstractModel] = {}
+    seen: dict[str, set[int]] = {}  # per house, the real instances its episodes saw
+    threshold = (_threshold(cfg, _extractor(extractor_name, cfg.encoder_weights))
+                 if variant.memory else None)
+    if variant.memory == "pre":
+        models, seen = _pre_explored(cfg, extractor_name, out, progress, engine)
+        for m in models.values():  # matched at this run's threshold
+            m.relocation_threshold = threshold
+    if store_dir is not None:
+        _clear_store(store_dir)
+    store = ModelStore(store_dir) if store_dir is not None else None
+    bar = _bar(sum(counts.values()), variant.name, progress)
+    records: list[dict] = []
+    step = 1 if variant.learns else _rounds_per_call(engine, len(scenes))
+    try:
+        for r0 in range(0, rounds, step):
+            if r0 == 0 or variant.learns:  # pre-explored memories never change: index once
+                context = {}
+                if variant.memory:
+                    context["memory"] = Memory(models, threshold=threshold)
+                if variant.policy == "semantic":
+                    context["cooccurrence"] = cooccurrence(models.values())
+            tasks = [(cfg, variant, s, r, r, extractor_name, _topdown_path(cfg, out, variant, s, r))
+                     for r in range(r0, min(r0 + step, rounds)) for s in scenes if r < counts[s]]
+            outcomes = engine.map(_run_task, tasks, context, bar)
+            for o in outcomes:
+                for path, data in o.files.items():
+                    Path(path).parent.mkdir(parents=True, exist_ok=True)
+                    Path(path).write_bytes(data)
+            if variant.learns:
+                for o in outcomes:  # merges in scene order: the same with any worker count
+                    changed, gone = absorb(models, o, cfg.forget_below,
+                                           cfg.forget_label_share)
+                    seen.setdefault(o.record["scene"], set()).update(o.seen)
+                    if store is not None:
+                        store.save(models[changed])
+                        for mid in gone:
+                            store.delete(mid)
+            for r in range(r0, min(r0 + step, rounds)):  # records and .part, round by round
+                round_records = [o.record for o in outcomes if o.record["episode"] == r]
+                records.extend(round_records)
+                if on_round is not None:
+                    on_round(round_records)
+    finally:
+        bar.close()
+        _ROUND.clear()
+    return records, (memory_fidelity(cfg, models, seen) if variant.memory else None)
+
+
+def memory_fidelity(cfg: EvalConfig, models: dict[str, AbstractModel],
+                    seen: dict[str, set[int]]) -> dict:
+    """The memory scored against ground truth (:mod:`kgnav.benchmark.fidelity`), per house
+    and pooled; None when the environment offers no ground truth for it (``scene_objects``,
+    ``episode_start``)."""
+    per_house = {}
+    for k in cfg.scene_indices:
+        env = _env(cfg, k)
+        objects = getattr(env, "scene_objects", None)
+        if objects is None or not hasattr(env, "episode_start"):
+            return None
+        name = scene_name(env, cfg, k)
+        gt = _GroundTruth(env, name, 0)
+        mine = [(m, _model_frame(gt, mid)) for mid, m in sorted(models.items())
+                if _house_of(mid) == name]
+        per_house[name] = fidelity.score_memory(mine, objects(), seen.get(name))
+    return {"pooled": fidelity.pooled(per_house), "houses": per_house}
+
+def _topdown_path(cfg: EvalConfig, out: Path | None, variant: Variant, scene: int,
+                  episode: int) -> str | None:
+    if out is None or cfg.show is None or (scene, episode) != tuple(cfg.show):
+        return None
+    return str(out / "topdown" / f"{variant.name}_{scene:02d}_e{episode:03d}.png")
+
+
+def absorb(models: dict[str, AbstractModel], o: Outcome, forget_below: float = 0.0,
+           forget_label_share: float = 0.0) -> tuple[str, list[str]]:
+    """Fold an episode's :class:`Outcome` into the memory (in place):
+    :func:`kgnav.benchmark.memory_update.absorb` with its model, the model it relocated
+    into, the transform and its bridges."""
+    return _absorb(models, o.model, into=o.matched, transform=o.transform, bridges=o.bridges,
+                   forget_below=forget_below, forget_label_share=forget_label_share)
+
+
+def _clear_store(path: Path) -> None:
+    """A fresh run starts from an empty memory: remove the models a previous run left."""
+    if path.is_dir():
+        for f in path.glob("*.graphml"):
+            f.unlink()
+
+
+def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progress: bool,
+                  engine: Engine) -> dict[str, AbstractModel]:
+    """The hp/sp memory: one pre-explored model per house, built once per output directory."""
+    params = {"split": cfg.source_name, "scenes": cfg.scene_indices, "seed": cfg.seed,
+              "forget": [cfg.forget_below, cfg.forget_label_share], "agent": asdict(cfg.agent),
+              "steps": cfg.pre_explore_steps,
+              "extractor": _extractor(extractor_name, cfg.encoder_weights).name,
+              "segmenter": cfg.segmenter, "size": [cfg.width, cfg.height]}
+    if cfg.env != DEFAULT_ENV:  # (kgnav's keys stay as they were: stored memories stay valid)
+        params["env"] = cfg.env
+    key = json.dumps(params, sort_keys=True)
+    if _CACHE.get("pre_key") == key:
+        return dict(_CACHE["pre_models"]), dict(_CACHE["pre_seen"])
+    store_dir = out / "memory" / "pre-explored" if out is not None else None
+    models: dict[str, AbstractModel] = {}
+    seen: dict[str, set[int]] = {}
+    if store_dir is not None and (store_dir / "params.json").is_file():
+        if (store_dir / "params.json").read_text() == key:
+            loaded, problems = ModelStore(store_dir).load_all()
+            try:
+                seen = {h: set(v) for h, v in
+                        json.loads((store_dir / "seen.json").read_text()).items()}
+            except (OSError, ValueError, AttributeError, TypeError):
+                seen = None
+            if not problems and len(loaded) == len(cfg.scene_indices) and seen is not None:
+                models = loaded
+    if not models:
+        bar = _bar(len(cfg.scene_indices), "pre-explore", progress)
+        try:
+            tasks = [(cfg, s, extractor_name) for s in cfg.scene_indices]
+            for m, saw in engine.map(_pre_task, tasks, {}, bar):
+                if cfg.forget_below > 0 or cfg.forget_label_share > 0:
+                    forget(m, cfg.forget_below, min_label_share=cfg.forget_label_share)
+                models[m.model_id] = m
+                seen[_house_of(m.model_id)] = saw
+        finally:
+            bar.close()
+        if store_dir is not None:
+            _clear_store(store_dir)
+            store = ModelStore(store_dir)
+            for m in models.values():
+                store.save(m)
+            with atomic_open(store_dir / "seen.json", "w") as f:
+                json.dump({h: sorted(v) for h, v in sorted(seen.items())}, f)
+            with atomic_open(store_dir / "params.json", "w") as f:
+                f.write(key)
+    _CACHE["pre_key"] = key
+    _CACHE["pre_models"] = models
+    _CACHE["pre_seen"] = seen
+    return dict(models), dict(seen)
+
+
+# ---------------------------------------------------------------------- whole benchmark
+def summarize(records: Iterable[dict], seed: int = 0) -> dict[str, dict]:
+    """Per variant: mean Success/SPL/SoftSPL/DTS, episodes, relocation rate and failures, and
+    (``vs_ans``) the paired difference in success and SPL against ``ans`` on the same
+    episodes with a 95 % bootstrap interval."""
+    records = list(records)
+    by: dict[str, list[dict]] = {}
+    for rec in records:
+        by.setdefault(rec["variant"], []).append(rec)
+    out = {}
+    for name, recs in by.items():
+        n = len(recs)
+        reloc = [r for r in recs if r["relocated"]]
+        out[name] = {
+            "episodes": n,
+            "success": sum(r["success"] for r in recs) / n,
+            "spl": _mean(recs, "spl"),
+            "softspl": _mean(recs, "softspl"),
+            "dts": _mean(recs, "dts"),
+            "relocation_rate": len(reloc) / n,
+            "relocation_same_house": (sum(r["relocation"]["same_house"] for r in reloc)
+                                      / len(reloc)) if reloc else None,
+            "relocation_error_m": _median([r["relocation"].get("error_m") for r in reloc]),
+            "relocation_step": _median([r["relocation"].get("step") for r in reloc]),
+            **_later_relocation(recs),
+            "late_merges": sum(1 for r in recs if "late_merge" in r),
+            "wrong_merges": sum(1 for r in recs for m in _merges(r)
+                                if not m["same_house"] or _wrong(m)),
+            "wrong_bridges": sum(1 for r in recs if any(True for _ in _merges(r))
+                                 for b in r.get("bridges", ())
+                                 if _house_of(b["model"]) != r["scene"] or _wrong(b)),
+            "failures": {c: sum(r["failure"] == c for r in recs) for c in FAILURE_CLASSES},
+        }
+    for name, diff in paired_differences(records, "ans", seed=seed).items():
+        out[name]["vs_ans"] = diff
+    return out
+
+
+def _merges(record: dict):
+    """What an episode was merged into: its relocation, if merged, or its late match."""
+    if record.get("relocated") and record["relocation"].get("merged"):
+        yield record["relocation"]
+    if "late_merge" in record:
+        yield record["late_merge"]
+
+
+def _wrong(fields: dict) -> bool:
+    """A frame transform more than 1 m or 30 degrees off the truth."""
+    return fields.get("error_m", 0) > 1.0 or abs(fields.get("error_deg", 0)) > 30
+
+
+def _later_relocation(recs: list[dict]) -> dict:
+    """Relocation rate over each house's episodes after its first: the lowest house's, and
+    the mean over houses."""
+    by: dict[str, list[bool]] = {}
+    for r in sorted(recs, key=lambda r: (r.get("scene", ""), r.get("episode", 0))):
+        by.setdefault(r.get("scene", ""), []).append(r["relocated"])
+    rates = [sum(v[1:]) / len(v[1:]) for v in by.values() if len(v) > 1]
+    if not rates:
+        return {}
+    return {"relocated_after_first_min": round(min(rates), 3),
+            "relocated_after_first_mean": round(float(np.mean(rates)), 3)}
+
+
+def _mean(recs: list[dict], key: str) -> float | None:
+    """The mean of a metric over episodes; None if an episode lacks it (an environment
+    without that ground truth): a mean over some episodes would not be comparable."""
+    if any(r.get(key) is None for r in recs):
+        return None
+    return sum(r[key] for r in recs) / len(recs)
+
+
+def _median(values) -> float | None:
+    v = [x for x in values if x is not None]
+    return float(np.median(v)) if v else None
+
+
+def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = True
+             ) -> tuple[list[dict], dict]:
+    """Run every variant of ``cfg``; with ``out``, write ``episodes.jsonl`` (one line per
+    episode, rounds in order), ``summary.json`` (per variant) and ``config.json``.
+    Returns (records, summary)."""
+    extractor_name = resolve_extractor(cfg.extractor, cfg.encoder_weights)
+    features = _extractor(extractor_name, cfg.encoder_weights).name  # weights' fingerprint
+    out_dir = Path(out) if out is not None else None
+    engine = make_engine(cfg.engine, cfg.workers, cfg.address, _worker_init)
+    part = None
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        # results go to a side file first: a crash keeps what finished, and an earlier
+        # complete run stays intact until this one completes
+        part = open(out_dir / "episodes.jsonl.part", "w", encoding="utf-8")  # noqa: SIM115
+
+    def write(recs: list[dict]) -> None:
+        if part is not None:
+            for rec in recs:
+                part.write(json.dumps(rec, sort_keys=True) + "\n")
+            part.flush()
+
+    records: list[dict] = []
+    timing = {}
+    threads = _torch_threads(1)  # the networks run best on one thread per process
+    try:
+        for name in cfg.variants:
+            t0 = time.perf_counter()
+            recs, memory = run_variant(cfg, with_policy(VARIANTS[name], cfg.policy),
+                                       extractor_name, out_dir, progress, write, engine)
+            dt = time.perf_counter() - t0
+            timing[name] = {"seconds": round(dt, 2),
+                            "episodes_per_second": round(len(recs) / dt, 4) if dt > 0 else None}
+            if memory is not None:
+                timing[name]["memory"] = memory
+            records.extend(recs)
+        execution = {**{k: getattr(cfg, k) for k in EXECUTION}, **engine.describe()}
+    finally:
+        engine.close()
+        _torch_threads(threads)
+        if part is not None:
+            part.close()
+    summary = summarize(records, cfg.seed)
+    for name, t in timing.items():
+        summary[name].update(t)
+    if out_dir is not None:
+        os.replace(out_dir / "episodes.jsonl.part", out_dir / "episodes.jsonl")
+        with atomic_open(out_dir / "summary.json", "w") as f:
+            json.dump(summary, f, indent=2, sort_keys=True)
+        with atomic_open(out_dir / "config.json", "w") as f:
+            settings = {k: v for k, v in asdict(cfg).items() if k not in EXECUTION}
+            json.dump({**settings, "extractor": extractor_name, "features": features,
+                       "execution": execution}, f, indent=2, sort_keys=True)
+        write_plots(records, summary, cfg, out_dir)
+    return records, summary
+
+
+def write_plots(records: list[dict], summary: dict, cfg: EvalConfig, out_dir: Path) -> list[Path]:
+    """The figures of a run, as PNG files in ``out_dir``; returns their paths."""
+    import cv2
+
+    from kgnav.benchmark import plots
+
+    paths = [out_dir / "success_curve.png", out_dir / "failures.png"]
+    plots.success_curve(records, paths[0])
+    plots.failure_bars(summary, paths[1])
+    if cfg.show is not None:
+        scene, ep = cfg.show
+        imgs = {}
+        for name in cfg.variants:
+            f = out_dir / "topdown" / f"{name}_{scene:02d}_e{ep:03d}.png"
+            if f.is_file():
+                imgs[name] = cv2.cvtColor(cv2.imread(str(f)), cv2.COLOR_BGR2RGB)
+        pair = {k: imgs[k] for k in ("ans", "si")} if {"ans", "si"} <= imgs.keys() else imgs
+        if pair:
+            p = out_dir / f"topdown_{scene:02d}_e{ep:03d}.png"
+            plots.side_by_side(pair, p, f"{cfg.source_name} scene {scene}, episode {ep}")
+            paths.append(p)
+    return paths

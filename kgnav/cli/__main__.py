@@ -1,0 +1,5 @@
+"""``python -m kgnav.cli``: the ``kgnav`` command."""
+
+from kgnav.cli import main
+
+main()

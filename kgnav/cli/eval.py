@@ -1,0 +1,241 @@
+"""``kgnav eval`` and ``kgnav memory-map``: the ObjectNav benchmark from the command line (see
+:mod:`kgnav.benchmark.runner`) and the memories a run left, drawn over its houses."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.table import Table
+
+from kgnav.agent.noise_segmenters import SEGMENTER_PRESETS
+from kgnav.benchmark.engines import ENGINES
+from kgnav.benchmark.failures import FAILURE_CLASSES
+from kgnav.benchmark.variants import VARIANTS
+from kgnav.errors import KgnavError
+from kgnav.sim.episodes import SPLITS
+
+_ABBREV = {"Last Mile": "LM", "Hallucination": "Hal", "Detection": "Det",
+           "Exploration": "Exp", "Misc": "Misc"}
+
+
+def _variants(ctx, param, value: str) -> tuple[str, ...]:
+    names = tuple(dict.fromkeys(v.strip() for v in value.split(",") if v.strip()))
+    if not names:
+        raise click.BadParameter("give at least one variant", ctx, param)
+    bad = [n for n in names if n not in VARIANTS]
+    if bad:
+        raise click.BadParameter(f"unknown variant {bad[0]!r} (known: {', '.join(VARIANTS)})",
+                                 ctx, param)
+    return names
+
+
+def _show(ctx, param, value: str | None) -> tuple[int, int] | None:
+    if value is None:
+        return None
+    try:
+        scene, ep = (int(v) for v in value.split(":"))
+    except ValueError:
+        raise click.BadParameter(f"expected SCENE:EPISODE (two integers), got {value!r}",
+                                 ctx, param) from None
+    return scene, ep
+
+
+def _noise(ctx, param, value: str | None) -> tuple[float, float]:
+    """``actuation=K,odometry=S`` (either part may be left out) -> (K, S)."""
+    if not value or value == "none":
+        return 0.0, 0.0
+    out = {"actuation": 0.0, "odometry": 0.0}
+    for part in value.split(","):
+        k, _, v = part.partition("=")
+        k = k.strip()
+        if k not in out:
+            raise click.BadParameter(f"expected actuation=K,odometry=S, got {value!r}", ctx, param)
+        try:
+            out[k] = float(v)
+        except ValueError:
+            raise click.BadParameter(f"{k} needs a number, got {v!r}", ctx, param) from None
+        if not out[k] >= 0:
+            raise click.BadParameter(f"{k} must be >= 0, got {v!r}", ctx, param)
+    return out["actuation"], out["odometry"]
+
+
+@click.command("eval")
+@click.option("--env", "env_name", default="kgnav", show_default=True, metavar="NAME",
+              help="The environment: kgnav (the embedded simulator), any registered with "
+                   "kgnav.envs.register_env or the 'kgnav.envs' entry points, or "
+                   "MODULE:FACTORY.")
+@click.option("--split", default="val", show_default=True,
+              help=f"Which scenes: for --env kgnav one of {', '.join(SPLITS)} (train/val at "
+                   "Matterport3D scale, *-small from the first, small generator); another "
+                   "environment's own names otherwise.")
+@click.option("--scenes-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Run your own houses instead of --split: a directory written by "
+                   "'kgnav scenes generate'.")
+@click.option("--variants", callback=_variants, default="ans", show_default=True,
+              help=f"Comma-separated: {', '.join(VARIANTS)}.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("export/eval"), show_default=True,
+              help="Where episodes.jsonl, summary.json, plots and memories go.")
+@click.option("--scenes", type=click.IntRange(min=1), default=None,
+              help="Run only the first K scenes of the split (default: all).")
+@click.option("--episodes", type=click.IntRange(min=1), default=None,
+              help="Episodes per scene (default: the split's, 100 for val; all of a "
+                   "--scenes-dir).")
+@click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Processes (with --engine ray: the CPUs of the Ray instance it starts); "
+                   "results are identical to one.")
+@click.option("--engine", type=click.Choice(list(ENGINES)), default="local",
+              show_default=True,
+              help="Where episodes run: local processes, or Ray tasks (pip install "
+                   "'kgnav[ray]'); results are identical.")
+@click.option("--address", default=None, metavar="ADDR",
+              help="With --engine ray: join the Ray cluster at ADDR (HOST:PORT, 'auto' or "
+                   "ray://HOST:PORT) instead of starting Ray here.")
+@click.option("--segmenter", type=click.Choice(["learned", *sorted(SEGMENTER_PRESETS)]),
+              default="learned", show_default=True,
+              help="learned: the RGB-D network; or a noise preset on ground truth ('clean').")
+@click.option("--extractor", default="auto", show_default=True,
+              help="State features: kgnav-encoder, opencv-gist, or auto (the encoder if it "
+                   "loads).")
+@click.option("--threshold", type=click.FloatRange(0.0, 2.0), default=None,
+              help="Relocation cosine-distance threshold (default: the extractor's loop "
+                   "one).")
+@click.option("--encoder-weights", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, metavar="FILE",
+              help="Weights of kgnav-encoder [default: the shipped ones], e.g. retrained on "
+                   "another environment's frames (train-encoder --env); its models are named "
+                   "kgnav-encoder:<fingerprint> and never mix with the shipped encoder's.")
+@click.option("--pre-explore-steps", type=click.IntRange(min=10), default=1500,
+              show_default=True, help="Budget of the hp/sp pre-exploration per house.")
+@click.option("--show", callback=_show, default=None, metavar="SCENE:EPISODE",
+              help="Draw this episode from above for every variant (default: 0:LAST).")
+@click.option("--noise", callback=_noise, default=None, metavar="actuation=K,odometry=S",
+              help="Motion noise (K scales Gaussian 2.5 cm / 1 cm / 1 deg per move, 2 deg per "
+                   "turn) and pose-sensor noise (S m and S deg per step). Off by default, as "
+                   "in ObjectNav.")
+@click.option("--preset", type=click.Choice(["default", "paper"]), default="default",
+              show_default=True,
+              help="Agent settings: default (verified relocation, remembered geometry, "
+                   "evidence-weighted goals, close-range confirmation, memory consolidation) "
+                   "or the paper's own.")
+@click.option("--policy", default=None, metavar="NAME",
+              help="Global exploration policy of ans and si: frontier (their default), ppo, "
+                   "ppo-semantic, random-goal, ...; sem+si keeps semantic unless "
+                   "ppo-semantic.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--quiet", is_flag=True, help="No progress bars.")
+def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, workers, engine,
+             address, segmenter, extractor, threshold, encoder_weights, pre_explore_steps, show,
+             noise, preset, policy, seed, quiet) -> None:
+    """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
+    from kgnav.agent.loop import PRESETS
+    from kgnav.agent.policy import make_policy, policy_names
+    from kgnav.envs import find_env
+
+    try:
+        find_env(env_name)
+    except KgnavError as e:
+        raise click.BadParameter(str(e), param_hint="--env") from None
+    if env_name == "kgnav" and scenes_dir is None and split not in SPLITS:
+        raise click.BadParameter(f"unknown split {split!r} (known: {', '.join(SPLITS)})",
+                                 param_hint="--split")
+
+    if policy is not None:
+        if policy not in policy_names():
+            raise click.BadParameter(f"unknown policy {policy!r} (known: "
+                                     f"{', '.join(policy_names())})", param_hint="--policy")
+        make_policy(policy)  # a weight file that does not load fails here, in one line
+    if encoder_weights is not None:
+        if extractor not in ("auto", "kgnav-encoder"):
+            raise click.BadParameter(f"weights of kgnav-encoder, but --extractor is "
+                                     f"{extractor!r}", param_hint="--encoder-weights")
+        from kgnav.nets.encoder.weights import load_weights
+
+        load_weights(encoder_weights)  # one line, exit 1, when the file does not load
+    from kgnav.benchmark.runner import EvalConfig, run_eval
+
+    cfg = EvalConfig(split=split, scenes_dir=None if scenes_dir is None else str(scenes_dir),
+                     variants=variants, scenes=scenes, episodes=episodes,
+                     workers=workers, engine=engine, address=address, segmenter=segmenter,
+                     extractor=extractor, threshold=threshold, seed=seed,
+                     pre_explore_steps=pre_explore_steps,
+                     show=show, actuation_noise=noise[0], odometry_noise=noise[1],
+                     agent=PRESETS[preset](), forget_below=0.2 if preset == "default" else 0.0,
+                     forget_label_share=0.5 if preset == "default" else 0.0,
+                     preset=preset, policy=policy, env=env_name,
+                     encoder_weights=None if encoder_weights is None else str(encoder_weights))
+    if show is None:  # the first house's last episode
+        cfg = replace(cfg, show=(0, cfg.suite.episode_count(0, episodes) - 1))
+    _records, summary = run_eval(cfg, out_dir, progress=not quiet)
+    print_summary(summary)
+    click.echo(f"wrote {out_dir / 'episodes.jsonl'}, {out_dir / 'summary.json'} and plots")
+
+
+def print_summary(summary: dict) -> None:
+    """The paper's Table 1/3 analogue, plus relocation and failure counts."""
+    table = Table("variant", "episodes", "Success", "SPL", "SoftSPL", "DTS (m)", "relocated",
+                  *(_ABBREV[c] for c in FAILURE_CLASSES), "ep/s",
+                  title="ObjectNav (failures: Last Mile, Hallucination, Detection, "
+                        "Exploration, Misc)")
+    for name, s in summary.items():
+        table.add_row(
+            name, str(s["episodes"]), f"{s['success']:.3f}", _f(s["spl"], 3),
+            _f(s["softspl"], 3), _f(s["dts"], 3), f"{s['relocation_rate']:.2f}",
+            *(str(s["failures"][c]) for c in FAILURE_CLASSES),
+            f"{s['episodes_per_second']:.2f}" if s.get("episodes_per_second") else "",
+        )
+    console = Console(highlight=False)
+    if not console.is_terminal:  # a log file or pipe: do not squeeze the table to 80 columns
+        console = Console(highlight=False, width=140)
+    console.print(table)
+    paired = {n: s["vs_ans"] for n, s in summary.items() if "vs_ans" in s}
+    if paired:
+        t2 = Table("variant", "pairs", "Success − ans [95 % CI]", "SPL − ans [95 % CI]",
+                   title="Paired difference against ans (same episodes; bootstrap interval)")
+        for name, d in paired.items():
+            t2.add_row(name, str(d["success"]["pairs"]),
+                       *(f"{d[m]['diff']:+.3f} [{d[m]['low']:+.3f}, {d[m]['high']:+.3f}]"
+                         for m in ("success", "spl")))
+        console.print(t2)
+    mem = {n: s for n, s in summary.items() if "memory" in s}
+    if mem:
+        t3 = Table("variant", "reloc. after 1st (min/mean)", "reloc. step",
+                   "wrong merges (bridges)",
+                   "models/house", "objects", "precision (trusted)", "copies", "recall",
+                   title="Relocation and memory fidelity (against ground truth)")
+        for name, s in mem.items():
+            p = s["memory"]["pooled"]
+            lo, mean = s.get("relocated_after_first_min"), s.get("relocated_after_first_mean")
+            t3.add_row(
+                name, "–" if lo is None else f"{lo:.2f} / {mean:.2f}",
+                "–" if s.get("relocation_step") is None else f"{s['relocation_step']:.0f}",
+                f"{s.get('wrong_merges', 0)} ({s.get('wrong_bridges', 0)})",
+                " ".join(f"{k}:{v}" for k, v in p["models_per_house"].items()),
+                str(p["objects"]), f"{_f(p['precision'])} ({_f(p['trusted_precision'])})",
+                _f(p["copies"]), _f(p["recall"]))
+        console.print(t3)
+
+
+def _f(v, digits: int = 2) -> str:
+    """A number, or a dash where it is missing (no ground truth for it)."""
+    return "–" if v is None else f"{v:.{digits}f}"
+
+
+@click.command("memory-map")
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--variant", default="si", show_default=True,
+              help="Whose memory: si, sem+si, or pre-explored (the hp/sp memory).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=None, help="Where the PNGs go [default: RUN_DIR/memory].")
+@click.option("--ppm", type=click.FloatRange(min=2, max=200), default=30.0, show_default=True,
+              help="Pixels per metre.")
+def memory_map(run_dir: Path, variant: str, out_dir: Path | None, ppm: float) -> None:
+    """Draw every object the memory of a `kgnav eval` run holds, house by house, over the
+    house from above: colour per model, disc for a real object, cross for a phantom."""
+    from kgnav.benchmark.memory_map import draw_run
+
+    for path in draw_run(run_dir, variant, out_dir, ppm):
+        click.echo(str(path))
