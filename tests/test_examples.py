@@ -27,7 +27,7 @@ def run(script, *args):
 
 def test_every_example_is_covered():
     assert set(SCRIPTS) == {"goal_lookup.py", "visibility_ranking.py", "inventory_and_views.py",
-                            "action_path.py", "relocate_and_merge.py"}
+                            "action_path.py", "relocate_and_merge.py", "store_questions.py"}
 
 
 def test_goal_lookup(memory):
@@ -95,3 +95,27 @@ def test_relocate_and_merge(memory, tmp_path):
 def test_empty_store_message(tmp_path):
     res = run("goal_lookup.py", "chair", "--store", tmp_path)
     assert res.returncode == 1 and "no models here" in res.stderr
+
+
+def test_store_questions_answer_alike_on_a_directory_and_a_database(memory, cli):
+    pytest.importorskip("ladybug")
+    path, _ = memory
+    db = path.parent / "memory.lbug"
+    if not db.exists():
+        assert cli("store", "convert", path, db)[0] == 0
+    store = ModelStore(path)
+    model_id = store.ids()[0]
+    model = store.load(model_id)
+    chair = query.ranked_objects(model, "chair")[0].id
+    a_cls, b_cls = list(query.class_inventories(store)[model_id])[:2]
+    asked = [("objects", "chair"), ("objects", "chair", "--min-views", "3"),
+             ("near", a_cls, b_cls, "6"), ("saw", model_id, chair), ("inventory",),
+             ("within", model_id, "s0", "2")]
+    for args in asked:
+        a = run("store_questions.py", "--store", path, *args)
+        b = run("store_questions.py", "--store", db, *args)
+        assert a.returncode == 0 and b.returncode == 0, (args, a.stderr, b.stderr)
+        assert a.stdout == b.stdout and a.stdout.strip(), args
+    saw = run("store_questions.py", "--store", db, "saw", model_id, chair).stdout.split("\n")
+    dists = [float(line.split()[-2]) for line in saw if line]
+    assert dists == sorted(dists) and len(dists) == query.ranked_objects(model, "chair")[0].n_views

@@ -145,3 +145,31 @@ def test_canonical_and_xml_readers_agree(name):
             AbstractModel.from_graph(gr._read_canonical(path, 1 << 20))
     else:
         assert AbstractModel.from_graph(gr._read_canonical(path, 1 << 20)) == xml
+
+
+@pytest.mark.parametrize("doctype, encoding", [
+    ('<!DOCTYPE graphml SYSTEM "{fifo}">', "utf-8"),
+    ('<!DOCTYPE graphml [<!ENTITY % ext SYSTEM "{fifo}"> %ext;]>', "utf-8"),
+    ('<!DOCTYPE graphml SYSTEM "{fifo}">', "utf-16"),
+])
+def test_an_external_dtd_is_refused_before_it_is_opened(tmp_path, doctype, encoding, cli):
+    import os
+    import time
+
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)  # opening it for reading would block: nothing ever writes to it
+    text = (f'<?xml version="1.0" encoding="{encoding}"?>\n{doctype.format(fifo=fifo)}\n'
+            '<graphml xmlns="http://graphml.graphdrawing.org/xmlns">'
+            '<graph edgedefault="directed"/></graphml>\n')
+    store = tmp_path / "store"
+    store.mkdir()
+    path = store / "m.graphml"
+    path.write_bytes(text.encode(encoding))
+    t = time.perf_counter()
+    with pytest.raises(ModelFileError, match="document type declaration"):
+        AbstractModel.load(path)
+    code, _, err = cli("inspect", path)
+    assert code == 1 and len(err.strip().splitlines()) == 1 and "document type" in err
+    models, problems = ModelStore(store).load_all()
+    assert models == {} and "document type" in problems[0].reason
+    assert time.perf_counter() - t < 3.0

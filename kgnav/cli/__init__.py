@@ -32,7 +32,8 @@ def _register() -> None:
     from kgnav.cli import eval as eval_group
 
     for cmd in (memory.inspect, memory.merge_cmd, memory.query_cmd, memory.export_cmd,
-                memory.store_app, memory.demo, eval_group.eval_cmd, eval_group.memory_map,
+                memory.store_app, memory.cypher_cmd, memory.demo, eval_group.eval_cmd,
+                eval_group.memory_map,
                 scenes.scenes, encoder.train_encoder, encoder.relocation_bench,
                 segmenter.train_segmenter, segmenter.segmenter_bench, policy.train_policy,
                 policy.policy_bench):

@@ -3,6 +3,7 @@ read, merge, query and draw Abstract Models and list or check a store of them.""
 
 from __future__ import annotations
 
+import base64
 from pathlib import Path
 
 import click
@@ -13,7 +14,7 @@ from kgnav.errors import KgnavError
 from kgnav.memory import query
 from kgnav.memory.merge import best_anchor, merge
 from kgnav.memory.model import AbstractModel
-from kgnav.memory.store import ModelStore
+from kgnav.memory.store import ModelStore, backend_of
 
 
 def _parse_xy(ctx, param, value: str | None) -> tuple[float, float] | None:
@@ -165,7 +166,7 @@ def store_app() -> None:
 
 
 @store_app.command("ls")
-@click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
+@click.argument("directory", metavar="STORE", type=click.Path(path_type=Path))
 @_JSON
 def store_ls(directory: Path, as_json: bool) -> None:
     """List the models of a store; unreadable files are reported on stderr and skipped."""
@@ -173,7 +174,7 @@ def store_ls(directory: Path, as_json: bool) -> None:
 
 
 @store_app.command("check")
-@click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
+@click.argument("directory", metavar="STORE", type=click.Path(path_type=Path))
 @_JSON
 def store_check(directory: Path, as_json: bool) -> None:
     """Report every problem in a store, changing nothing; exit status 1 if there is any.
@@ -183,9 +184,7 @@ def store_check(directory: Path, as_json: bool) -> None:
     (directories, FIFOs, dangling symbolic links, loops), and temporary files that interrupted
     saves left behind.
     """
-    if not directory.is_dir():
-        raise DataError(f"{directory}: not a directory")
-    good, problems = ModelStore(directory).check()
+    good, problems = _open_store(directory).check()
     if as_json:
         _emit_json({"directory": str(directory), "models": good,
                     "problems": [{"path": p.path, "kind": p.kind, "reason": p.reason}
@@ -198,10 +197,72 @@ def store_check(directory: Path, as_json: bool) -> None:
         raise click.exceptions.Exit(1)
 
 
+def _open_store(path: Path) -> ModelStore:
+    """An existing store: a directory of GraphML files or a graph database (by its suffix)."""
+    if backend_of(path) == "directory":
+        if not path.is_dir():
+            raise DataError(f"{path}: not a directory" if path.exists()
+                            else f"{path}: not a directory (no such store)")
+    elif not path.exists():
+        raise DataError(f"{path}: no such store")
+    return ModelStore(path)
+
+
+@store_app.command("convert")
+@click.argument("source", metavar="SRC", type=click.Path(path_type=Path))
+@click.argument("dest", metavar="DST", type=click.Path(path_type=Path))
+def store_convert(source: Path, dest: Path) -> None:
+    """Copy every model of SRC into DST, between a directory of GraphML files and a graph
+    database (a path ending in .lbug), either way. Models that do not load are reported on
+    stderr and skipped; a model of DST with the same id is replaced."""
+    src = _open_store(source)
+    dst = ModelStore(dest)
+    copied = 0
+    for _, model, problem in src.each():  # one model in memory at a time
+        if model is None:
+            click.echo(f"kgnav: warning: skipped {safe(problem)}", err=True)
+            continue
+        dst.save(model)
+        copied += 1
+    out.print(safe(f"{source} -> {dest}: {copied} models"))
+
+
+@click.command("cypher")
+@click.argument("store", type=click.Path(path_type=Path))
+@click.argument("query")
+@_JSON
+def cypher_cmd(store: Path, query: str, as_json: bool) -> None:
+    """Run a read-only Cypher QUERY on a graph-database STORE and print its rows (a query that
+    would write is refused). docs/graphdb.md has the schema and example queries."""
+    db = _open_store(store)
+    if not hasattr(db, "cypher"):
+        raise DataError(f"{store}: a directory store; Cypher needs a graph database "
+                        f"(kgnav store convert {store} memory.lbug)")
+    columns, rows = db.cypher(query)
+    if as_json:
+        _emit_json({"columns": columns,
+                    "rows": [dict(zip(columns, map(_json_cell, r), strict=True)) for r in rows]})
+        return
+    table = _table(*columns, title=f"{len(rows)} rows")
+    for r in rows:
+        _row(table, *(_text_cell(v) for v in r))
+    out.print(table)
+
+
+def _json_cell(v):
+    if isinstance(v, bytes):  # features and range profiles: raw little-endian bytes
+        return base64.b64encode(v).decode("ascii")
+    if isinstance(v, dict | list | str | int | float | bool) or v is None:
+        return v
+    return str(v)
+
+
+def _text_cell(v) -> str:
+    return f"<{len(v)} bytes>" if isinstance(v, bytes) else "" if v is None else str(v)
+
+
 def _list_store(directory: Path, as_json: bool) -> None:
-    if not directory.is_dir():
-        raise DataError(f"{directory}: not a directory")
-    models, problems = ModelStore(directory).load_all()
+    models, problems = _open_store(directory).load_all()
     for p in problems:
         click.echo(f"kgnav: warning: skipped {safe(p)}", err=True)
     rows = [

@@ -10,6 +10,10 @@
 * :func:`trusted_objects` — objects of a class with their evidence and belief
   (:mod:`kgnav.memory.evidence`).
 
+And of a whole store at once (:mod:`kgnav.memory.store_query`; Cypher on a graph database):
+:func:`find_objects`, :func:`models_with_classes_near`, :func:`states_that_saw`,
+:func:`class_inventories`, :func:`objects_near_state`.
+
 A class outside the model's vocabulary raises :class:`~kgnav.errors.UnknownClassError`; a class in
 the vocabulary that the model has not seen simply has no objects.
 
@@ -36,6 +40,14 @@ from collections.abc import Collection
 import networkx as nx
 
 from kgnav.memory.model import SEES, AbstractModel, ObjectInfo
+from kgnav.memory.store_query import (  # noqa: F401 - the store-wide questions, asked here too
+    StoredObject,
+    class_inventories,
+    find_objects,
+    models_with_classes_near,
+    objects_near_state,
+    states_that_saw,
+)
 
 #: The paper ranks candidate goal objects by views and picks the closest of this many.
 TOP_K = 5

@@ -41,6 +41,7 @@ from kgnav.common import atomic
 from kgnav.errors import ModelFileError, StoreError
 from kgnav.memory.graphml import describe_mode, write_model
 from kgnav.memory.model import SAFE_ID, AbstractModel
+from kgnav.registry import Registry
 
 
 @dataclass(frozen=True)
@@ -59,8 +60,25 @@ class StoreProblem:
         return f"{self.path}: {self.reason}"
 
 
+#: Where a store keeps its models, by name: ``directory`` (one GraphML file per model, this
+#: module) and ``ladybug`` (an embedded graph database, :mod:`kgnav.memory.graphdb`, imported on
+#: first use).
+BACKENDS: Registry[type] = Registry("store backend", plugins=("kgnav.memory.graphdb",))
+#: File names that hold a graph database rather than name a directory.
+DB_SUFFIXES = (".lbug", ".kuzu", ".kgdb")
+
+
+def backend_of(root: str | os.PathLike[str]) -> str:
+    """``ladybug`` for a path ending in one of :data:`DB_SUFFIXES`, else ``directory``."""
+    return "ladybug" if Path(root).suffix in DB_SUFFIXES else "directory"
+
+
+@BACKENDS.register("directory")
 class ModelStore:
-    """One GraphML file per model under ``root`` (created if missing).
+    """The memory: Abstract Models by id. ``ModelStore(path)`` keeps them as one GraphML file per
+    model under the directory ``path`` (created if missing), or in a graph database when
+    ``path`` names one (:func:`backend_of`; :class:`kgnav.memory.graphdb.GraphDBStore`): the
+    same interface either way.
 
     Parameters
     ----------
@@ -74,6 +92,11 @@ class ModelStore:
 
     SUFFIX = ".graphml"
     LOCK_NAME = ".kgnav-store.lock"
+
+    def __new__(cls, root: str | os.PathLike[str], **kwargs):
+        if cls is ModelStore and backend_of(root) != "directory":
+            cls = BACKENDS.get(backend_of(root))
+        return super().__new__(cls)
 
     def __init__(
         self,
@@ -175,7 +198,9 @@ class ModelStore:
             )
         return model
 
-    def _each(self) -> Iterator[tuple[str, AbstractModel | None, StoreProblem | None]]:
+    def each(self) -> Iterator[tuple[str, AbstractModel | None, StoreProblem | None]]:
+        """Every model id with its model, or with the problem that kept it from loading: one
+        model in memory at a time."""
         for model_id, path, problem in self._entries():
             if problem is not None:
                 yield model_id, None, StoreProblem(str(path), problem, "entry")
@@ -190,7 +215,7 @@ class ModelStore:
         could not be loaded (a bad file, or not a file)."""
         models: dict[str, AbstractModel] = {}
         problems: list[StoreProblem] = []
-        for model_id, model, problem in self._each():
+        for model_id, model, problem in self.each():
             if model is not None:
                 models[model_id] = model
             else:
@@ -204,7 +229,7 @@ class ModelStore:
         runs on another host, or predates the writer's name in the file name)."""
         good: list[str] = []
         problems: list[StoreProblem] = []
-        for model_id, model, problem in self._each():  # one model in memory at a time
+        for model_id, model, problem in self.each():  # one model in memory at a time
             if model is not None:
                 good.append(model_id)
             else:

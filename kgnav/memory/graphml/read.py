@@ -958,6 +958,24 @@ _T = {t: f"{{{NS}}}{t}" for t in ("graphml", "key", "graph", "node", "edge", "da
 _XINCLUDE = ("http://www.w3.org/2001/XInclude", "http://www.w3.org/2003/XInclude")
 
 
+_ENCODINGS = ("utf-8", "utf-16-le", "utf-16-be", "utf-32-le", "utf-32-be")
+_DOCTYPES = tuple(("<!DOCTYPE".encode(e), e) for e in _ENCODINGS)
+_DOCTYPE_TAIL = max(len(d) for d, _ in _DOCTYPES)
+
+
+def _refuse_doctype(path: str, head: bytes) -> None:
+    """A document type declaration in the bytes before the root element, in any encoding XML
+    allows, is refused before the parser sees it (the same rule as :meth:`_XmlReader.check_prolog`,
+    which catches what this byte scan cannot)."""
+    for pattern, encoding in _DOCTYPES:
+        at = head.find(pattern)
+        if at >= 0:
+            text = head[at:at + 400].decode(encoding, errors="replace")
+            text = text[:text.find(">") + 1] or text[:100]
+            raise ModelFileError(path, f"has a document type declaration ({show(text)}): "
+                                       "not allowed")
+
+
 class _XmlReader:
     """Any GraphML file, through lxml's pull parser, freeing elements as it goes."""
 
@@ -1020,8 +1038,14 @@ class _XmlReader:
                     self.check_prolog(el)
                 handlers[el.tag](el)
 
+        prolog = b""
         try:
             for chunk in _chunks(self.path, self.limit):
+                if not self.prolog_checked:
+                    # libxml2 opens an external DTD or parameter entity as it parses the
+                    # DOCTYPE (a FIFO named there hangs the read): refuse it unread
+                    prolog = prolog[-_DOCTYPE_TAIL:] + bytes(chunk)
+                    _refuse_doctype(self.path, prolog)
                 parser.feed(chunk)
                 handle_events()
             root = parser.close()
