@@ -47,7 +47,30 @@ STRATEGIES = ("hard", "soft")
 SOFT_SEARCHES = ("direct", "area")
 LIVE_OVERRIDES = ("always", "belief")
 
-__all__ = ["AgentConfig", "EpisodeLog", "ObjectNavAgent", "Percept", "Relocation", "Target"]
+#: Why an episode with a memory never headed for a goal taken from it
+#: (:meth:`ObjectNavAgent.memory_goal_reason`), decided from what the agent knew. Across
+#: several relocations the one that came closest to the remembered goal is given: the order of
+#: :data:`_CLOSEST_FIRST`.
+MEMORY_GOAL_REASONS = (
+    "not_relocated",  # never relocated into a stored model
+    "relocated_too_late",  # relocated, but never chose a target while relocated
+    "goal_seen_in_episode",  # headed for a remembered goal-class object this episode had
+    # itself perceived first (an "episode" target, not a "memory" one)
+    "live_detection_preferred",  # the relocated model held a goal the rules trust, but the
+    # agent headed for a closer object it had perceived itself
+    "goal_in_other_model",  # the relocated model held no trusted goal; another model the
+    # episode's views matched (a feature-space hypothesis or a bridge) did
+    "belief_below_threshold",  # the relocated model held the goal class, none trusted
+    "goal_not_in_relocated_model",  # it held no object of the class, nor did the other
+    # models matched hold a trusted one
+    "other",  # a trusted remembered goal at the end the loop never chose (evidence moved)
+)
+_CLOSEST_FIRST = ("goal_seen_in_episode", "live_detection_preferred", "other",
+                  "goal_in_other_model", "belief_below_threshold",
+                  "goal_not_in_relocated_model", "relocated_too_late")
+
+__all__ = ["MEMORY_GOAL_REASONS", "AgentConfig", "EpisodeLog", "MemoryPeriod",
+           "ObjectNavAgent", "Percept", "Relocation", "Target"]
 
 
 @dataclass(frozen=True)
@@ -142,6 +165,22 @@ class Percept:
 
 
 @dataclass
+class MemoryPeriod:
+    """A stretch of the episode spent relocated into one stored model, kept so that the end of
+    the episode can say why no remembered goal was headed for
+    (:meth:`ObjectNavAgent.memory_goal_reason`): references to what the agent reasoned with,
+    nothing recomputed while it acts."""
+
+    step: int  # when the relocation was accepted
+    model_id: str
+    model: AbstractModel  # the merged model the agent reasoned with
+    seen: set  # its objects this episode perceived (the agent's own set, updated in place)
+    scans: ScanTable  # its range profiles (the evidence's misses)
+    reasoned: bool = False  # a target was chosen at least once while relocated
+    perceived: set = field(default_factory=set)  # object targets it had perceived itself
+
+
+@dataclass
 class EpisodeLog:
     """What the agent did, for metrics and failure analysis."""
 
@@ -149,6 +188,7 @@ class EpisodeLog:
     rejected: list[str] = field(default_factory=list)
     stop_reason: str | None = None
     undone: list[Relocation] = field(default_factory=list)  # relocations landmarks refuted
+    periods: list[MemoryPeriod] = field(default_factory=list)  # one per relocation accepted
 
 
 class ObjectNavAgent:
@@ -315,6 +355,8 @@ class ObjectNavAgent:
         }
         self._prev = (sid, self.current_.known_node(f"{prefix}{sid}"))
         self._target = None  # re-decide with the knowledge just gained
+        self.log_.periods.append(MemoryPeriod(r.step, r.model_id, self.current_,
+                                              self._seen_here, self._scans))
         if self.config.seed_map:
             geo = self.memory.geometry(r.model_id)
             if geo is not None:
@@ -511,6 +553,15 @@ class ObjectNavAgent:
         return None
 
     def _choose_target(self, p: Percept, explore: bool = True) -> Target | None:
+        target = self._pick_target(p, explore)
+        if self.relocation_ is not None and self.log_.periods:  # the period standing
+            period = self.log_.periods[-1]
+            period.reasoned = True
+            if target is not None and target.source in ("episode", "live"):
+                period.perceived.add(target.object_id)
+        return target
+
+    def _pick_target(self, p: Percept, explore: bool) -> Target | None:
         cur = self._target
         if self._soft and cur is not None and cur.source == "memory":
             live = self._live_goal(p)
@@ -545,6 +596,48 @@ class ObjectNavAgent:
             self._best = (math.inf, self.step_)
         self._target = t
         return t
+
+    # ------------------------------------------------------------------ the episode's account
+    def memory_goal_reason(self) -> str | None:
+        """Why this episode never headed for a goal taken from memory, one of
+        :data:`MEMORY_GOAL_REASONS`, decided from what the agent knew (the models, its
+        relocations, the targets it chose); None without a memory or when it did head for
+        one. For the end of the episode: it changes nothing the agent acts on, and its cost
+        (the goal rule on the models relocated into and matched) is paid only when asked."""
+        if self.memory is None or self.goal is None:
+            return None
+        if any(t[1] == "memory" for t in self.log_.targets):
+            return None
+        if not self.log_.periods:
+            return "not_relocated"
+        reasons = {self._period_reason(p) for p in self.log_.periods}
+        return next(r for r in _CLOSEST_FIRST if r in reasons)
+
+    def _period_reason(self, period: MemoryPeriod) -> str:
+        """:meth:`memory_goal_reason` for one relocation (the rules in the order of
+        :data:`MEMORY_GOAL_REASONS`)."""
+        if not period.reasoned:
+            return "relocated_too_late"
+        stored = self.memory.model(period.model_id)
+        g = period.model.graph
+        remembered = {o for o in stored.objects()
+                      if stored.graph.nodes[o]["cls"] == self.goal and o in g}
+        if remembered & period.perceived:
+            return "goal_seen_in_episode"
+        if remembered and choose_goal(period.model, self.goal, (0.0, 0.0), self.config.goals,
+                                      table=period.scans, among=remembered) is not None:
+            return "live_detection_preferred" if period.perceived else "other"
+        matched = set(self.relocalizer.matched) - {period.model_id}
+        if any(self._believes_goal(self.memory.model(mid)) for mid in sorted(matched)):
+            return "goal_in_other_model"
+        if remembered:
+            return "belief_below_threshold"
+        return "goal_not_in_relocated_model"
+
+    def _believes_goal(self, model: AbstractModel) -> bool:
+        """Whether the goal rule would head for some object of ``model`` (its own evidence)."""
+        return (self.goal in model.classes
+                and choose_goal(model, self.goal, (0.0, 0.0), self.config.goals) is not None)
 
     def _model_goal(self, pose) -> Target | None:
         """The goal point from the current model (:mod:`kgnav.agent.goals`), mapped into the

@@ -183,6 +183,7 @@ class Relocalizer:
         self.undone: list[Relocation] = []
         self.bridges: dict[str, Verdict] = {}  # other models verified during the episode
         self.decisions: Counter = Counter()
+        self.matched: set[str] = set()  # models whose states the episode's views matched
         self._recent: deque = deque(maxlen=self.config.recent_scans)
         self._all: list = []  # every profile of the episode, for the check before merging
         self._candidates: list[tuple[int, str, tuple]] = []
@@ -208,7 +209,9 @@ class Relocalizer:
             return None
         best = None
         judged = 0
-        for m in self._matches(state.features):
+        matches = self._matches(state.features)
+        self.matched.update(m.model_id for m in matches)
+        for m in matches:
             stored = self.memory.model(m.model_id)
             T = se2.anchor_transform(stored.pose(m.state_id), state.pose)
             if any(u.model_id == m.model_id and self._agree(u.transform, T) for u in self.undone):
@@ -624,6 +627,7 @@ class Relocalizer:
         """A verified match into another stored model than the one relocated into."""
         # the models not relocated into are few states among many: look further down the list
         for m in self._matches(state.features, 8 * self.config.top_k):
+            self.matched.add(m.model_id)
             if m.model_id == self.relocation.model_id or m.model_id in self.bridges:
                 continue
             stored = self.memory.model(m.model_id)

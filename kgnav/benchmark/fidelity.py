@@ -11,7 +11,9 @@ created it, mapped to the world with ``frame``):
   nearest instance), averaged over the instances represented; 1.0 is one node per object;
 * **recall**: share of the real instances the episodes *saw* (ground truth: visible in some
   frame, large enough and near enough to be segmented) that some model object stands for;
-* **models**: how many separate models the house's memory is made of.
+* **models**: how many separate models the house's memory is made of;
+* **goal held** (:func:`holds_true_instance`): whether the models hold a true instance of a
+  class, the benchmark's ``goal_in_memory`` at an episode's start.
 
 >>> from kgnav.sim.house import ObjectInstance
 >>> chair = ObjectInstance(1, "chair", 0, 0.0, 0.0, 0.5, 0.5, 0.0, 0.9, (0, 0, 0))
@@ -41,19 +43,16 @@ def score_objects(objects: Iterable[tuple], instances,
     the episodes saw (recall is over those; None: all). ``false_by_views``: how many objects
     stand for no real instance, by how many states saw them."""
     objects = list(objects)
-    by_cls: dict[str, list] = {}
-    for inst in instances:
-        by_cls.setdefault(inst.cls, []).append(inst)
+    by_cls = _by_class(instances)
     matched, trusted, trusted_ok = 0, 0, 0
     stands_for: Counter = Counter()
     false: Counter = Counter()
     for cls, x, y, b, *views in objects:
-        best = min(((inst.distance_to(x, y), inst.id) for inst in by_cls.get(cls, ())),
-                   default=(math.inf, None))
-        ok = best[0] <= tolerance
+        inst = stands_for_instance(cls, x, y, by_cls, tolerance)
+        ok = inst is not None
         matched += ok
         if ok:
-            stands_for[best[1]] += 1
+            stands_for[inst] += 1
         elif views:
             false["1" if views[0] <= 1 else "2-3" if views[0] <= 3 else "4+"] += 1
         if b >= 0.5:
@@ -72,6 +71,40 @@ def score_objects(objects: Iterable[tuple], instances,
         "recall": _ratio(found, len(pool)),
         "false_by_views": {k: false[k] for k in ("1", "2-3", "4+")},
     }
+
+
+def _by_class(instances) -> dict[str, list]:
+    by_cls: dict[str, list] = {}
+    for inst in instances:
+        by_cls.setdefault(inst.cls, []).append(inst)
+    return by_cls
+
+
+def stands_for_instance(cls: str, x: float, y: float, by_cls: dict[str, list],
+                        tolerance: float = TOLERANCE) -> int | None:
+    """The id of the real instance a model object of class ``cls`` at world ``(x, y)`` stands
+    for: the nearest footprint of its class (``by_cls``: instances by class), if within
+    ``tolerance``; None for a phantom. Every score here matches objects this one way."""
+    dist, inst = min(((i.distance_to(x, y), i.id) for i in by_cls.get(cls, ())),
+                     default=(math.inf, None))
+    return inst if dist <= tolerance else None
+
+
+def holds_true_instance(models: Iterable[tuple[AbstractModel, tuple]], cls: str, instances,
+                        tolerance: float = TOLERANCE) -> bool:
+    """Whether some object of class ``cls`` in ``models`` (each with its world frame, as for
+    :func:`score_memory`) stands for a real instance of ``cls``: the memory held the goal,
+    whatever the agent believed of it (a phantom of the class does not count)."""
+    by_cls = _by_class(i for i in instances if i.cls == cls)
+    for model, frame in models:
+        nodes = model.graph.nodes
+        for o in model.objects():
+            if nodes[o]["cls"] != cls:
+                continue
+            x, y = se2.apply_to_point(frame, nodes[o]["x"], nodes[o]["y"])
+            if stands_for_instance(cls, x, y, by_cls, tolerance) is not None:
+                return True
+    return False
 
 
 def _ratio(a: float, b: float) -> float | None:

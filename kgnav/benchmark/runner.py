@@ -28,6 +28,7 @@ import os
 import re
 import tempfile
 import time
+from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -36,7 +37,7 @@ import numpy as np
 
 from kgnav.agent.camera import Camera
 from kgnav.agent.features import loop_threshold, make_extractor
-from kgnav.agent.loop import AgentConfig, ObjectNavAgent
+from kgnav.agent.loop import MEMORY_GOAL_REASONS, AgentConfig, ObjectNavAgent
 from kgnav.agent.memory import Memory
 from kgnav.agent.noise_segmenters import GROUND_TRUTH_SEGMENTERS
 from kgnav.agent.oracle import OracleAgent
@@ -46,7 +47,7 @@ from kgnav.benchmark import fidelity
 from kgnav.benchmark.engines import Engine, check_settings, make_engine
 from kgnav.benchmark.failures import FAILURE_CLASSES, classify
 from kgnav.benchmark.memory_update import absorb as _absorb
-from kgnav.benchmark.stats import paired_differences
+from kgnav.benchmark.stats import METRICS, paired_differences
 from kgnav.benchmark.variants import VARIANTS, Variant, with_policy
 from kgnav.common import se2
 from kgnav.common.atomic import atomic_open
@@ -287,6 +288,8 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     name = scene_name(env, cfg, scene)
     agent.reset(goal, seed=seed, scene=name, episode=scene * 1000 + episode,
                 model_id=f"{name}-e{episode:03d}")
+    gt = _GroundTruth(env, name, episode)
+    held = goal_in_memory(gt, memory, goal)  # scoring only: the agent never sees it
     seen = seen_instances(obs) if variant.learns else set()
     done, steps = False, 0
     while not done:
@@ -300,7 +303,6 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
         raise EnvProtocolError(f"environment {spec.name!r}: the last step's info has no "
                                f"'success'")
 
-    gt = _GroundTruth(env, name, episode)
     if topdown is not None:
         _draw(env, agent, topdown)
     reloc = agent.relocation_
@@ -336,6 +338,9 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
         record["target_error"] = (None if target_err is None or math.isinf(target_err)
                                   else round(target_err, 3))
     record["failure"] = _failure(record, variant, target_source, target_err)
+    record["goal_in_memory"] = held
+    record["memory_goal_reason"] = (agent.memory_goal_reason()
+                                    if held and record.get("memory_goal_step") is None else None)
     if not variant.oracle and agent.log_.undone:
         record["undone"] = [_relocation_fields(gt, u) for u in agent.log_.undone]
     if reloc is not None:
@@ -365,6 +370,20 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
         return Outcome(record, agent.model_, into.transform if into else None,
                        into.model_id if into else None, bridges, seen)
     return Outcome(record)
+
+
+def goal_in_memory(gt: _GroundTruth, memory: Memory | None, goal: str) -> bool | None:
+    """Whether the house's memory (any of its stored models) holds a true instance of the
+    goal class: an object of the class that fidelity matching
+    (:func:`kgnav.benchmark.fidelity.holds_true_instance`) maps to a real instance of it.
+    Asked as the episode starts, to split where success is lost; None without a memory, or
+    without the ground truth it needs (``scene_objects``, ``episode_start``)."""
+    objects = getattr(gt.env, "scene_objects", None)
+    if memory is None or objects is None or not hasattr(gt.env, "episode_start"):
+        return None
+    mine = [(m, frame) for mid, m in sorted(memory.models.items())
+            if (frame := _model_frame(gt, mid)) is not None]
+    return fidelity.holds_true_instance(mine, goal, objects())
 
 
 def _metric(info: dict, key: str) -> float | None:
@@ -729,9 +748,10 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
 
 # ---------------------------------------------------------------------- whole benchmark
 def summarize(records: Iterable[dict], seed: int = 0) -> dict[str, dict]:
-    """Per variant: mean Success/SPL/SoftSPL/DTS, episodes, relocation rate and failures, and
-    (``vs_ans``) the paired difference in success and SPL against ``ans`` on the same
-    episodes with a 95 % bootstrap interval."""
+    """Per variant: mean Success/SPL/SoftSPL/DTS, episodes, relocation rate and failures, the
+    learning curve, (``vs_ans``) the paired difference in success and SPL against ``ans`` on
+    the same episodes with a 95 % bootstrap interval, and, for a variant with memory, where
+    its success is lost (:func:`where_lost`)."""
     records = list(records)
     by: dict[str, list[dict]] = {}
     for rec in records:
@@ -759,10 +779,71 @@ def summarize(records: Iterable[dict], seed: int = 0) -> dict[str, dict]:
                                  for b in r.get("bridges", ())
                                  if _house_of(b["model"]) != r["scene"] or _wrong(b)),
             "failures": {c: sum(r["failure"] == c for r in recs) for c in FAILURE_CLASSES},
+            **learning_curve(recs),
         }
+        if _has_memory(name):
+            out[name].update(where_lost(recs))
     for name, diff in paired_differences(records, "ans", seed=seed).items():
         out[name]["vs_ans"] = diff
+    if "ans" in by:
+        for name, recs in by.items():
+            if name != "ans" and _has_memory(name):
+                out[name]["goal_not_in_memory_vs_ans"] = _not_in_memory_vs_ans(
+                    name, recs, by["ans"], seed)
     return out
+
+
+def _has_memory(variant: str) -> bool:
+    v = VARIANTS.get(variant)
+    return v is not None and v.memory is not None
+
+
+def learning_curve(recs: list[dict]) -> dict:
+    """Success by episode index within a house (0: each house's first episode of the run),
+    over the houses that ran that many; and success from a house's fifth episode on (None
+    before): what a memory that keeps learning should raise."""
+    by: dict[str, list[bool]] = {}
+    for r in sorted(recs, key=lambda r: (r.get("scene", ""), r.get("episode", 0))):
+        by.setdefault(r.get("scene", ""), []).append(bool(r["success"]))
+    at: list[list[bool]] = []
+    for outcomes in by.values():
+        for i, ok in enumerate(outcomes):
+            if i == len(at):
+                at.append([])
+            at[i].append(ok)
+    late = [ok for outcomes in by.values() for ok in outcomes[4:]]
+    return {"success_by_episode_index": [sum(v) / len(v) for v in at],
+            "success_from_fifth_episode": sum(late) / len(late) if late else None}
+
+
+def where_lost(recs: list[dict]) -> dict:
+    """A memory variant's episodes split by whether the house's memory held a true instance
+    of the goal as they started (``goal_in_memory``; episodes that cannot know are in
+    neither part): episodes, success and SPL of each part; of the goal-in-memory ones, how
+    many headed for a goal taken from memory, and why the others did not, counted."""
+    held = [r for r in recs if r.get("goal_in_memory") is True]
+    missing = [r for r in recs if r.get("goal_in_memory") is False]
+    reasons = Counter(r.get("memory_goal_reason") for r in held)
+    return {"goal_in_memory": _part(held), "goal_not_in_memory": _part(missing),
+            "memory_goal_headed": sum(r.get("memory_goal_step") is not None for r in held),
+            "memory_goal_reasons": {k: reasons[k] for k in MEMORY_GOAL_REASONS}}
+
+
+def _part(recs: list[dict]) -> dict:
+    return {"episodes": len(recs),
+            "success": sum(r["success"] for r in recs) / len(recs) if recs else None,
+            "spl": _mean(recs, "spl") if recs else None}
+
+
+def _not_in_memory_vs_ans(name: str, recs: list[dict], ans: list[dict], seed: int) -> dict:
+    """The paired difference against ``ans`` over the episodes whose memory did not hold the
+    goal (:func:`~kgnav.benchmark.stats.paired_differences`): what the memory gives beyond
+    remembered objects. Numbers are None without pairs."""
+    mine = [r for r in recs if r.get("goal_in_memory") is False]
+    diff = paired_differences([*mine, *ans], "ans", seed=seed).get(name, {})
+    empty = {"diff": None, "low": None, "high": None, "pairs": 0}
+    return {m: {k: (None if isinstance(v, float) and math.isnan(v) else v)
+                for k, v in diff.get(m, empty).items()} for m in METRICS}
 
 
 def _merges(record: dict):

@@ -10,6 +10,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
+from kgnav.agent.loop import MEMORY_GOAL_REASONS
 from kgnav.agent.noise_segmenters import SEGMENTER_PRESETS
 from kgnav.benchmark.engines import ENGINES
 from kgnav.benchmark.failures import FAILURE_CLASSES
@@ -19,6 +20,10 @@ from kgnav.sim.episodes import SPLITS
 
 _ABBREV = {"Last Mile": "LM", "Hallucination": "Hal", "Detection": "Det",
            "Exploration": "Exp", "Misc": "Misc"}
+_REASONS = {"not_relocated": "not relocated", "relocated_too_late": "too late",
+            "goal_seen_in_episode": "seen first", "live_detection_preferred": "own preferred",
+            "goal_in_other_model": "other model", "belief_below_threshold": "low belief",
+            "goal_not_in_relocated_model": "not in model", "other": "other"}
 
 
 def _variants(ctx, param, value: str) -> tuple[str, ...]:
@@ -216,6 +221,47 @@ def print_summary(summary: dict) -> None:
                 " ".join(f"{k}:{v}" for k, v in p["models_per_house"].items()),
                 str(p["objects"]), f"{_f(p['precision'])} ({_f(p['trusted_precision'])})",
                 _f(p["copies"]), _f(p["recall"]))
+        console.print(t3)
+    _print_where_lost(console, summary)
+
+
+def _print_where_lost(console: Console, summary: dict) -> None:
+    """Where a memory variant's success is lost: episodes whose memory held the goal against
+    those whose memory did not (that part paired with ans), why goal-in-memory episodes did
+    not head for the remembered goal, and every variant's success by a house's episode
+    index."""
+    lost = {n: s for n, s in summary.items() if "goal_in_memory" in s}
+    if lost:
+        t = Table("variant", "in memory: n", "Success / SPL", "not in memory: n",
+                  "Success / SPL", "Success − ans [95 % CI] (pairs)",
+                  title="Where success is lost (goal in memory: a stored model of the house "
+                        "held a true instance as the episode started)")
+        for name, s in lost.items():
+            held, missing = s["goal_in_memory"], s["goal_not_in_memory"]
+            d = s.get("goal_not_in_memory_vs_ans", {}).get("success")
+            t.add_row(name, str(held["episodes"]),
+                      f"{_f(held['success'], 3)} / {_f(held['spl'], 3)}",
+                      str(missing["episodes"]),
+                      f"{_f(missing['success'], 3)} / {_f(missing['spl'], 3)}",
+                      "–" if d is None or d["diff"] is None
+                      else f"{d['diff']:+.3f} [{d['low']:+.3f}, {d['high']:+.3f}] ({d['pairs']})")
+        console.print(t)
+        t2 = Table("variant", "headed", *(_REASONS[r] for r in MEMORY_GOAL_REASONS),
+                   title="Goal in memory: episodes that headed for the remembered goal, and "
+                         "why the others did not")
+        for name, s in lost.items():
+            t2.add_row(name, str(s["memory_goal_headed"]),
+                       *(str(s["memory_goal_reasons"][r]) for r in MEMORY_GOAL_REASONS))
+        console.print(t2)
+    curves = {n: s for n, s in summary.items() if "success_by_episode_index" in s}
+    if curves:
+        t3 = Table("variant", "Success by episode index in a house (0: its first)",
+                   "from the 5th on", title="Learning curve")
+        for name, s in curves.items():
+            curve = s["success_by_episode_index"]
+            shown = " ".join(f"{v:.2f}" for v in curve[:10])
+            t3.add_row(name, shown + (f" … ({len(curve)})" if len(curve) > 10 else ""),
+                       _f(s["success_from_fifth_episode"], 3))
         console.print(t3)
 
 

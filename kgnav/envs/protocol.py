@@ -65,7 +65,8 @@ GROUND_TRUTH_HOOKS: dict[str, str] = {
     "start_frame_to_world(x, y), l2_distance_to_goal(x, y)": "failure analysis: the target's "
                                                              "distance to a real goal; failures "
                                                              "other than Exploration are null",
-    "scene_objects()": "memory fidelity (the real instances: id, cls, distance_to(x, y))",
+    "scene_objects()": "memory fidelity (the real instances: id, cls, distance_to(x, y)) "
+                       "and goal_in_memory (null without it or episode_start)",
     "obs['semantic'] instances": "which real instances the episodes saw (fidelity recall)",
     "navigable_map(), world_pose": "the oracle variant",
     "topdown(path, ...)": "the --show pictures",
