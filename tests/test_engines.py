@@ -225,9 +225,10 @@ def test_ray_engine_writes_the_bytes_of_the_local_engine(ray_cluster, tmp_path):
     png = "topdown/si_01_e001.png"
     assert (tmp_path / "local" / png).read_bytes() == (tmp_path / "ray" / png).read_bytes()
     c1, c2 = (json.loads((tmp_path / d / "config.json").read_text()) for d in ("local", "ray"))
-    assert c1.pop("execution") == {"engine": "local", "workers": 1, "address": None}
+    assert c1.pop("execution") == {"engine": "local", "workers": 1, "address": None,
+                                   "store": "directory"}
     assert c2.pop("execution") == {"engine": "ray", "workers": 1, "address": None, "cpus": 2,
-                                   "nodes": 1}
+                                   "nodes": 1, "store": "directory"}
     assert c1 == c2
 
 

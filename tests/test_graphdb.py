@@ -275,3 +275,23 @@ def test_the_documented_questions_run_on_the_demo_memory(tmp_path, cli):
         assert columns
         answered += bool(rows)
     assert answered == 10  # every question has an answer in the demo memory
+
+
+def test_eval_keeps_its_memory_in_a_database_with_the_same_results(tmp_path, cli):
+    from kgnav.benchmark.runner import EvalConfig, run_eval
+
+    quick = dict(split="val-small", scenes=1, episodes=3, max_steps=100,
+                 extractor="opencv-gist", pre_explore_steps=120, variants=("si", "sp"))
+    run_eval(EvalConfig(**quick), tmp_path / "dir", progress=False)
+    run_eval(EvalConfig(**quick, store="ladybug"), tmp_path / "db", progress=False)
+    a, b = tmp_path / "dir", tmp_path / "db"
+    assert (a / "episodes.jsonl").read_bytes() == (b / "episodes.jsonl").read_bytes()
+    for name, db in (("si", "si.lbug"), ("pre-explored", "pre-explored/models.lbug")):
+        files, _ = ModelStore(a / "memory" / name).load_all()
+        stored, problems = ModelStore(b / "memory" / db).load_all()
+        assert problems == [] and stored == files and files
+    config = json.loads((b / "config.json").read_text())
+    assert config["execution"]["store"] == "ladybug" and "store" not in config
+    code, out, err = cli("memory-map", b, "--variant", "si", "--out", tmp_path / "maps")
+    assert code == 0, err
+    assert out.strip().endswith(".png")

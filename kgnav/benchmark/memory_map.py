@@ -92,9 +92,12 @@ def draw_run(run_dir: str | os.PathLike[str], variant: str = "si",
         source = scene_source(cfg["split"], cfg.get("scenes_dir"))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise KgnavError(f"{run}: not a kgnav eval output directory ({exc})") from None
-    store_dir = run / "memory" / variant
-    if not store_dir.is_dir():
-        have = sorted(p.name for p in (run / "memory").glob("*") if p.is_dir())
+    store_dir = next((p for p in (run / "memory" / variant, run / "memory" / f"{variant}.lbug",
+                                  run / "memory" / variant / "models.lbug") if p.is_file()),
+                     run / "memory" / variant)  # a database (eval --store ladybug), or files
+    if not store_dir.exists():
+        have = sorted(p.name.removesuffix(".lbug") for p in (run / "memory").glob("*")
+                      if p.is_dir() or p.suffix == ".lbug")
         raise KgnavError(f"{store_dir}: no stored memory for {variant!r} "
                          f"(there: {', '.join(have) or 'none'})")
     models, problems = ModelStore(store_dir).load_all()

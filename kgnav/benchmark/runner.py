@@ -110,6 +110,7 @@ class EvalConfig:
     address: str | None = None
     env: str = DEFAULT_ENV
     encoder_weights: str | None = None  # kgnav-encoder's weight file (None: the shipped one)
+    store: str = "directory"  # where the memory is written: GraphML files, or "ladybug"
 
     def __post_init__(self):
         find_env(self.env)  # a one-line error for an unknown or broken one
@@ -121,6 +122,8 @@ class EvalConfig:
             if v not in VARIANTS:
                 raise KgnavError(f"unknown variant {v!r} (known: {', '.join(VARIANTS)})")
         check_settings(self.engine, self.workers, self.address)
+        if self.store not in STORES:
+            raise KgnavError(f"unknown store {self.store!r} (known: {', '.join(STORES)})")
         if self.encoder_weights is not None and self.extractor not in ("auto", ENCODER):
             raise KgnavError(f"encoder weights are for extractor {ENCODER!r}, not "
                              f"{self.extractor!r}")
@@ -149,8 +152,9 @@ class EvalConfig:
 
 
 #: The fields of :class:`EvalConfig` that say how a run executes; they never change its results
-#: (``config.json`` keeps them apart, under ``execution``).
-EXECUTION = ("workers", "engine", "address")
+#: (``config.json`` keeps them apart, under ``execution``). ``store`` says where the memory is
+#: written (:func:`memory_store`); the agents work on the models in memory either way.
+EXECUTION = ("workers", "engine", "address", "store")
 
 
 ENCODER = "kgnav-encoder"
@@ -603,7 +607,8 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
     scenes = cfg.scene_indices
     counts = dict(zip(scenes, _episode_count(cfg), strict=True))
     rounds = max(counts.values())
-    store_dir = out / "memory" / variant.name if (out is not None and variant.learns) else None
+    store_dir = (memory_path(out, variant.name, cfg.store)
+                 if (out is not None and variant.learns) else None)
     models: dict[str, AbstractModel] = {}
     seen: dict[str, set[int]] = {}  # per house, the real instances its episodes saw
     threshold = (_threshold(cfg, _extractor(extractor_name, cfg.encoder_weights))
@@ -612,8 +617,9 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
         models, seen = _pre_explored(cfg, extractor_name, out, progress, engine)
         for m in models.values():  # matched at this run's threshold
             m.relocation_threshold = threshold
-    if store_dir is not None:
-        _clear_store(store_dir)
+    if store_dir is not None:  # (both kinds: a memory-map must not find a previous run's)
+        for kind in STORES:
+            _clear_store(memory_path(out, variant.name, kind))
     store = ModelStore(store_dir) if store_dir is not None else None
     bar = _bar(sum(counts.values()), variant.name, progress)
     records: list[dict] = []
@@ -687,11 +693,25 @@ def absorb(models: dict[str, AbstractModel], o: Outcome, forget_below: float = 0
                    forget_below=forget_below, forget_label_share=forget_label_share)
 
 
+STORES = ("directory", "ladybug")
+
+
+def memory_path(out: Path, name: str, store: str = "directory") -> Path:
+    """Where a run writes the memory of variant ``name``: ``out/memory/NAME/`` of GraphML files,
+    or the database ``out/memory/NAME.lbug`` (the hp/sp memory: ``pre-explored/`` or
+    ``pre-explored/models.lbug``, beside its cache keys)."""
+    return out / "memory" / (f"{name}.lbug" if store == "ladybug" else name)
+
+
 def _clear_store(path: Path) -> None:
     """A fresh run starts from an empty memory: remove the models a previous run left."""
     if path.is_dir():
         for f in path.glob("*.graphml"):
             f.unlink()
+    elif path.suffix == ".lbug":  # the database and what LadybugDB and the store keep beside it
+        for f in path.parent.glob(path.name + "*"):
+            if f.is_file():
+                f.unlink()
 
 
 def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progress: bool,
@@ -705,21 +725,26 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
     if cfg.env != DEFAULT_ENV:  # (kgnav's keys stay as they were: stored memories stay valid)
         params["env"] = cfg.env
     key = json.dumps(params, sort_keys=True)
-    if _CACHE.get("pre_key") == key:
-        return dict(_CACHE["pre_models"]), dict(_CACHE["pre_seen"])
     store_dir = out / "memory" / "pre-explored" if out is not None else None
+    models_at = (store_dir / "models.lbug" if cfg.store == "ladybug" else store_dir
+                 ) if store_dir is not None else None
     models: dict[str, AbstractModel] = {}
     seen: dict[str, set[int]] = {}
+    stored = False  # this output directory already holds this memory
+    if _CACHE.get("pre_key") == key:  # built by this process for another run: not rebuilt
+        # (copies: a run sets its threshold on the models it uses; the stored memory is as built)
+        models = {k: m.copy() for k, m in _CACHE["pre_models"].items()}
+        seen = dict(_CACHE["pre_seen"])
     if store_dir is not None and (store_dir / "params.json").is_file():
         if (store_dir / "params.json").read_text() == key:
-            loaded, problems = ModelStore(store_dir).load_all()
+            loaded, problems = ModelStore(models_at).load_all()
             try:
-                seen = {h: set(v) for h, v in
-                        json.loads((store_dir / "seen.json").read_text()).items()}
+                saw = {h: set(v) for h, v in
+                       json.loads((store_dir / "seen.json").read_text()).items()}
             except (OSError, ValueError, AttributeError, TypeError):
-                seen = None
-            if not problems and len(loaded) == len(cfg.scene_indices) and seen is not None:
-                models = loaded
+                saw = None
+            if not problems and len(loaded) == len(cfg.scene_indices) and saw is not None:
+                models, seen, stored = loaded, saw, True
     if not models:
         bar = _bar(len(cfg.scene_indices), "pre-explore", progress)
         try:
@@ -731,17 +756,18 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
                 seen[_house_of(m.model_id)] = saw
         finally:
             bar.close()
-        if store_dir is not None:
-            _clear_store(store_dir)
-            store = ModelStore(store_dir)
-            for m in models.values():
-                store.save(m)
-            with atomic_open(store_dir / "seen.json", "w") as f:
-                json.dump({h: sorted(v) for h, v in sorted(seen.items())}, f)
-            with atomic_open(store_dir / "params.json", "w") as f:
-                f.write(key)
+    if store_dir is not None and not stored:
+        _clear_store(store_dir)
+        _clear_store(store_dir / "models.lbug")
+        store = ModelStore(models_at)
+        for m in models.values():
+            store.save(m)
+        with atomic_open(store_dir / "seen.json", "w") as f:
+            json.dump({h: sorted(v) for h, v in sorted(seen.items())}, f)
+        with atomic_open(store_dir / "params.json", "w") as f:
+            f.write(key)
     _CACHE["pre_key"] = key
-    _CACHE["pre_models"] = models
+    _CACHE["pre_models"] = {k: m.copy() for k, m in models.items()}
     _CACHE["pre_seen"] = seen
     return dict(models), dict(seen)
 

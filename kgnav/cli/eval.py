@@ -131,10 +131,15 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
                    "ppo-semantic, random-goal, ...; sem+si keeps semantic unless "
                    "ppo-semantic.")
 @click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--store", "store", type=click.Choice(["directory", "ladybug"]),
+              default="directory", show_default=True,
+              help="Where the memory is written: OUT/memory/VARIANT/ as GraphML files, or the "
+                   "graph database OUT/memory/VARIANT.lbug (kgnav[graphdb]); the results are "
+                   "the same.")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, workers, engine,
              address, segmenter, extractor, threshold, encoder_weights, pre_explore_steps, show,
-             noise, preset, policy, seed, quiet) -> None:
+             noise, preset, policy, seed, store, quiet) -> None:
     """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
     from kgnav.agent.loop import PRESETS
     from kgnav.agent.policy import make_policy, policy_names
@@ -171,7 +176,8 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
                      agent=PRESETS[preset](), forget_below=0.2 if preset == "default" else 0.0,
                      forget_label_share=0.5 if preset == "default" else 0.0,
                      preset=preset, policy=policy, env=env_name,
-                     encoder_weights=None if encoder_weights is None else str(encoder_weights))
+                     encoder_weights=None if encoder_weights is None else str(encoder_weights),
+                     store=store)
     if show is None:  # the first house's last episode
         cfg = replace(cfg, show=(0, cfg.suite.episode_count(0, episodes) - 1))
     _records, summary = run_eval(cfg, out_dir, progress=not quiet)
