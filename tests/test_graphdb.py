@@ -11,7 +11,6 @@ import subprocess
 import sys
 import time
 
-import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -23,7 +22,7 @@ except ImportError:  # pragma: no cover - the dev extra installs it
         raise
     pytest.skip("ladybug is not installed (pip install 'kgnav[graphdb]')", allow_module_level=True)
 
-from kgnav import AbstractModel, ModelStore, StoreError, merge  # noqa: E402
+from kgnav import AbstractModel, ModelStore, StoreError  # noqa: E402
 from kgnav.memory import graphdb  # noqa: E402
 from kgnav.memory.graphml import to_graphml  # noqa: E402
 from kgnav.memory.synthetic import SyntheticWorld  # noqa: E402
@@ -147,27 +146,15 @@ def test_a_failed_save_keeps_the_previous_version(tmp_path, monkeypatch):
     assert store.load("h") == first
 
 
-def _extend(args):
-    root, worker = args
-    store = ModelStore(root)
-    for i in range(4):
-        def grow(cur, i=i):
-            extra = AbstractModel(feature_dim=4, model_id=f"w{worker}x{i}")
-            extra.add_state(np.array([worker, i, 1, 1], dtype=np.float32), (worker * 10.0, i, 0))
-            return merge(cur, extra)
-        store.update("shared", grow)
-    return worker
-
-
 def test_two_processes_updating_one_database_lose_nothing(tmp_path):
+    from tests.test_store import _extend, _model  # the directory store's own concurrency test
+
     root = tmp_path / "memory.lbug"
-    first = AbstractModel(feature_dim=4, model_id="shared")
-    first.add_state(np.ones(4, np.float32), (0.0, 0.0, 0.0))
-    ModelStore(root).save(first)
+    ModelStore(root).save(_model("shared", 1))
     with mp.get_context("spawn").Pool(2) as pool:
         assert sorted(pool.map(_extend, [(str(root), 1), (str(root), 2)])) == [1, 2]
     final = ModelStore(root).load("shared")
-    assert final.n_states == 1 + 2 * 4 and len(final.merged_from) == 8
+    assert final.n_states == 1 + 2 * 5 and len(final.merged_from) == 10
 
 
 _WRITER = """
