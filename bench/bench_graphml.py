@@ -108,7 +108,7 @@ def peak(args) -> None:
             out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                                  check=True).stdout
             r = json.loads(out)
-            rows.append(["xml" if xml else "read_model", round(size, 1), r["states"],
+            rows.append(["xml" if xml else "load", round(size, 1), r["states"],
                          round(r["s"], 2), round(r["before"]), round(r["peak"]),
                          round(r["peak"] - r["before"])])
     print_table("Peak memory loading one file (MB; a fresh process per reader)",
