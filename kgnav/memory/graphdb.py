@@ -41,11 +41,11 @@ import numpy as np
 from filelock import FileLock, Timeout
 
 from kgnav.errors import ModelFileError, StoreError
-from kgnav.memory.constants import SAFE_ID, SCHEMA_VERSION, SEES
+from kgnav.memory.constants import SCHEMA_VERSION, SEES
 from kgnav.memory.geometry import ScanGeometry
 from kgnav.memory.graphml.schema import format_other, other_type, parse_other, schema
 from kgnav.memory.model import AbstractModel
-from kgnav.memory.store import BACKENDS, ModelStore, StoreProblem
+from kgnav.memory.store import BACKENDS, ModelStore, StoreProblem, check_model_id
 
 #: Version of the database layout below; a database of another version is refused.
 DB_SCHEMA_VERSION = 1
@@ -145,7 +145,7 @@ class GraphDBStore(ModelStore):
     # ------------------------------------------------------------------ reading
     def path_of(self, model_id: str) -> Path:
         """The database file (every model lives in it); the id must be a plain name."""
-        _check_id(model_id)
+        check_model_id(model_id)
         return self.root
 
     def ids(self) -> list[str]:
@@ -156,7 +156,7 @@ class GraphDBStore(ModelStore):
 
     def load(self, model_id: str) -> AbstractModel:
         """Load one model; :class:`StoreError` if absent."""
-        _check_id(model_id)
+        check_model_id(model_id)
         with self._connect(write=False) as conn:
             if conn is None:
                 raise StoreError(f"{self.root}: no model {model_id!r}")
@@ -169,19 +169,8 @@ class GraphDBStore(ModelStore):
             except (ModelFileError, StoreError) as exc:
                 yield model_id, None, StoreProblem(f"{self.root}#{model_id}", str(exc))
 
-    def check(self) -> tuple[list[str], list[StoreProblem]]:
-        """The ids that load and a problem per model that does not; changes nothing."""
-        good: list[str] = []
-        problems: list[StoreProblem] = []
-        for model_id, model, problem in self.each():
-            if model is not None:
-                good.append(model_id)
-            else:
-                problems.append(problem)
-        return good, problems
-
-    def remove_stale_temps(self) -> list[Path]:
-        return []  # a database leaves no temporary files: an unfinished save is rolled back
+    def _listing(self) -> list[Path]:
+        return []  # no files of its own beside the database: an unfinished save is rolled back
 
     def cypher(self, query: str, params: dict | None = None) -> tuple[list[str], list[list]]:
         """Run a read-only Cypher query: its column names and rows. The database is opened
@@ -204,7 +193,7 @@ class GraphDBStore(ModelStore):
     # ------------------------------------------------------------------ writing
     def save(self, model: AbstractModel) -> Path:
         """Write ``model``, replacing its previous version, in one transaction."""
-        _check_id(model.model_id)
+        check_model_id(model.model_id)
         rows = _model_rows(model)
         with self._connect(write=True) as conn:
             _transaction(conn, lambda: (_delete(conn, model.model_id),
@@ -214,7 +203,7 @@ class GraphDBStore(ModelStore):
     def update(self, model_id: str, fn: Callable[[AbstractModel | None], AbstractModel]
                ) -> AbstractModel:
         """Read-modify-write in one transaction under the lock: no concurrent update is lost."""
-        _check_id(model_id)
+        check_model_id(model_id)
         with self._connect(write=True) as conn:
             current = (_read_model(conn, model_id, self.root)
                        if _has_model(conn, model_id) else None)
@@ -227,7 +216,7 @@ class GraphDBStore(ModelStore):
 
     def delete(self, model_id: str) -> None:
         """Remove a model; :class:`StoreError` if it is not there."""
-        _check_id(model_id)
+        check_model_id(model_id)
         with self._connect(write=True) as conn:
             if not _has_model(conn, model_id):
                 raise StoreError(f"{self.root}: no model {model_id!r}")
@@ -253,12 +242,6 @@ def _open(path: Path, *, read_only: bool):
         _open(path, read_only=False)[0].close()
         return _open(path, read_only=True)
     return db, ladybug.Connection(db)
-
-
-def _check_id(model_id) -> None:
-    if not isinstance(model_id, str) or not SAFE_ID.match(model_id):
-        raise StoreError(f"invalid model id {model_id!r}: use letters, digits and _ . + - "
-                         "(max 128)")
 
 
 def _check_file(path: Path) -> None:

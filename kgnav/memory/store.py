@@ -73,6 +73,14 @@ def backend_of(root: str | os.PathLike[str]) -> str:
     return "ladybug" if Path(root).suffix in DB_SUFFIXES else "directory"
 
 
+def check_model_id(model_id) -> None:
+    """A :class:`StoreError` unless ``model_id`` is a plain name (it names files and keys)."""
+    if not isinstance(model_id, str) or not SAFE_ID.match(model_id):
+        raise StoreError(
+            f"invalid model id {model_id!r}: use letters, digits and _ . + - (max 128)"
+        )
+
+
 @BACKENDS.register("directory")
 class ModelStore:
     """The memory: Abstract Models by id. ``ModelStore(path)`` keeps them as one GraphML file per
@@ -117,10 +125,7 @@ class ModelStore:
     # ------------------------------------------------------------------ naming
     def path_of(self, model_id: str) -> Path:
         """The file that holds ``model_id``; the id must be a plain file-name stem."""
-        if not isinstance(model_id, str) or not SAFE_ID.match(model_id):
-            raise StoreError(
-                f"invalid model id {model_id!r}: use letters, digits and _ . + - (max 128)"
-            )
+        check_model_id(model_id)
         return self.root / f"{model_id}{self.SUFFIX}"
 
     def _listing(self) -> list[Path]:
