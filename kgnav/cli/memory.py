@@ -17,6 +17,12 @@ from kgnav.memory.model import AbstractModel
 from kgnav.memory.store import ModelStore, backend_of
 
 
+def _stderr():
+    from rich.console import Console
+
+    return Console(stderr=True)
+
+
 def _parse_xy(ctx, param, value: str | None) -> tuple[float, float] | None:
     if value is None:
         return None
@@ -215,15 +221,21 @@ def store_convert(source: Path, dest: Path) -> None:
     """Copy every model of SRC into DST, between a directory of GraphML files and a graph
     database (a path ending in .lbug), either way. Models that do not load are reported on
     stderr and skipped; a model of DST with the same id is replaced."""
+    from rich.progress import Progress
+
     src = _open_store(source)
     dst = ModelStore(dest)
     copied = 0
-    for _, model, problem in src.each():  # one model in memory at a time
-        if model is None:
-            click.echo(f"kgnav: warning: skipped {safe(problem)}", err=True)
-            continue
-        dst.save(model)
-        copied += 1
+    with Progress(console=_stderr(), transient=True) as bar:
+        task = bar.add_task("converting", total=len(src.ids()))
+        for _, model, problem in src.each():  # one model in memory at a time
+            bar.advance(task)
+            if model is None:
+                bar.console.print(f"kgnav: warning: skipped {safe(problem)}", markup=False,
+                                  highlight=False, soft_wrap=True)
+                continue
+            dst.save(model)
+            copied += 1
     out.print(safe(f"{source} -> {dest}: {copied} models"))
 
 

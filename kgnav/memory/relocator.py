@@ -22,7 +22,12 @@ True
 
 from __future__ import annotations
 
+import json
+import os
+import warnings
+import zipfile
 from collections.abc import Callable
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -42,11 +47,13 @@ class Match(NamedTuple):
 class VectorTable:
     """Unit-norm feature rows in a growable buffer, with an alive mask for replaced models."""
 
-    def __init__(self, dim: int):
+    def __init__(self, dim: int, capacity: int = 0):
         self.dim = dim
         self.n = 0
-        self._buf = np.zeros((0, dim), dtype=np.float32)
-        self._alive = np.zeros(0, dtype=bool)
+        # sized up front when the caller knows the count: growing by doubling would hold the
+        # old and the new buffer at once (up to 3x the features) during the copy
+        self._buf = np.empty((capacity, dim), dtype=np.float32)
+        self._alive = np.zeros(capacity, dtype=bool)
 
     @property
     def vectors(self) -> np.ndarray:
@@ -60,7 +67,7 @@ class VectorTable:
         start, need = self.n, self.n + len(rows)
         if need > len(self._buf):
             cap = max(need, 2 * len(self._buf), 1024)
-            buf = np.zeros((cap, self.dim), dtype=np.float32)
+            buf = np.empty((cap, self.dim), dtype=np.float32)
             buf[:start] = self._buf[:start]
             alive = np.zeros(cap, dtype=bool)
             alive[:start] = self._alive[:start]
@@ -96,6 +103,14 @@ class SearchBackend:
 
     def rebuild(self, table: VectorTable) -> None:  # pragma: no cover - interface
         """All rows changed (fit or compaction)."""
+
+    def state(self) -> dict[str, np.ndarray]:
+        """What :meth:`restore` needs to skip a rebuild, as arrays (saved with the index)."""
+        return {}
+
+    def restore(self, table: VectorTable, state: dict[str, np.ndarray]) -> None:
+        """Take back :meth:`state` for ``table``; rebuild when it is missing or unusable."""
+        self.rebuild(table)
 
     def added(self, table: VectorTable, start: int) -> None:  # pragma: no cover - interface
         """Rows ``start:table.n`` were appended."""
@@ -187,6 +202,37 @@ class HNSWBackend(SearchBackend):
         for start in range(0, table.n, 65536):  # bounded temporaries on large tables
             self._index.add(self._project(x[start : start + 65536]))
 
+    def state(self) -> dict[str, np.ndarray]:
+        out = {"trained_at": np.array(self._trained_at, dtype=np.int64)}
+        if self._pca is not None:
+            out["pca_mean"], out["pca_components"] = self._pca
+        if self._index is not None:
+            out["graph"] = self._faiss.serialize_index(self._index)
+        return out
+
+    def restore(self, table: VectorTable, state: dict[str, np.ndarray]) -> None:
+        try:
+            pca = None
+            if "pca_mean" in state:
+                mean = np.asarray(state["pca_mean"], np.float32)
+                comp = np.asarray(state["pca_components"], np.float32)
+                if mean.shape != (table.dim,) or comp.shape != (self.pca_dim, table.dim):
+                    raise ValueError("projection of another shape")
+                pca = (mean, comp)
+            index = None
+            if "graph" in state:
+                index = self._faiss.deserialize_index(np.asarray(state["graph"], np.uint8))
+                want = self.pca_dim if pca is not None else table.dim
+                if index.ntotal != table.n or index.d != want:
+                    raise ValueError("graph of another size")
+            elif table.n >= self.min_rows:
+                raise ValueError("no graph")
+        except (ValueError, RuntimeError, KeyError):
+            self.rebuild(table)  # a stale or damaged graph costs a rebuild, not a wrong answer
+            return
+        self._pca, self._index = pca, index
+        self._trained_at = int(state.get("trained_at", table.n))
+
     def added(self, table: VectorTable, start: int) -> None:
         if self._index is None or table.n >= 2 * max(self._trained_at, 1):
             self.rebuild(table)
@@ -248,6 +294,7 @@ class Relocator:
         self.feature_dim_: int | None = None
         self.extractor_: str | None = None
         self.problems_: list = []
+        self.store_revision_: str | None = None
         self._table: VectorTable | None = None
         self._owners: list[tuple[str, str]] = []
         self._rows: dict[str, np.ndarray] = {}
@@ -262,16 +309,34 @@ class Relocator:
     def n_states_(self) -> int:
         return 0 if self._table is None else self._table.n - self._dead
 
-    def fit(self, models) -> Relocator:
-        """Index every state of ``models``: a :class:`ModelStore` or an iterable of models."""
+    def fit(self, models, *, progress: Callable[[int], None] | None = None) -> Relocator:
+        """Index every state of ``models``: a :class:`ModelStore` or an iterable of models.
+
+        A store is read as a stream of feature batches (:meth:`ModelStore.feature_batches`):
+        no model is held, and a graph-database store is never loaded as models at all, so
+        fitting needs little more than the features' own bytes. ``progress`` is called with
+        the number of states added by each batch.
+        """
         from kgnav.memory.store import ModelStore
 
         self._reset()
         if isinstance(models, ModelStore):
-            loaded, self.problems_ = models.load_all()
-            models = loaded.values()
-        for m in models:
-            self._append(m)
+            self.store_revision_ = models.revision()
+            n = models.state_count()
+            for b in models.feature_batches(self.problems_):
+                if b.retract:
+                    self.remove(b.model_id)
+                    continue
+                if self._table is None and n is not None:
+                    self._table = VectorTable(b.feature_dim, capacity=n)
+                self._extend(b.model_id, b.extractor, b.feature_dim, b.state_ids, b.features)
+                if progress is not None:
+                    progress(len(b.state_ids))
+            if self._dead:
+                self._compact()
+        else:
+            for m in models:
+                self._append(m)
         if self._table is not None:
             self._backend.rebuild(self._table)
         return self
@@ -295,21 +360,30 @@ class Relocator:
         return self
 
     def _append(self, model: AbstractModel) -> int | None:
-        if self.feature_dim_ is None:
-            self.feature_dim_, self.extractor_ = model.feature_dim, model.extractor
-            self._table = VectorTable(model.feature_dim)
-        if model.feature_dim != self.feature_dim_:
-            raise FeatureDimError((model.feature_dim,), self.feature_dim_)
-        if model.extractor != self.extractor_:
-            raise KgnavError(
-                f"model {model.model_id!r} has features from {model.extractor!r}, "
-                f"the relocator indexes {self.extractor_!r}"
-            )
         self.remove(model.model_id)
         ids, feats = model.state_features()
+        return self._extend(model.model_id, model.extractor, model.feature_dim, ids, feats)
+
+    def _extend(self, model_id: str, extractor: str, dim: int, ids: list[str],
+                feats: np.ndarray) -> int | None:
+        """Append states of ``model_id`` after those already indexed for it (its rows stay
+        contiguous: a store streams a model in consecutive batches)."""
+        if self.feature_dim_ is None:
+            self.feature_dim_, self.extractor_ = dim, extractor
+            if self._table is None or self._table.dim != dim:
+                self._table = VectorTable(dim)
+        if dim != self.feature_dim_:
+            raise FeatureDimError((dim,), self.feature_dim_)
+        if extractor != self.extractor_:
+            raise KgnavError(
+                f"model {model_id!r} has features from {extractor!r}, "
+                f"the relocator indexes {self.extractor_!r}"
+            )
         start = self._table.append(unit_rows(feats)) if ids else self._table.n
-        self._owners.extend((model.model_id, s) for s in ids)
-        self._rows[model.model_id] = np.arange(start, start + len(ids))
+        self._owners.extend((model_id, s) for s in ids)
+        before = self._rows.get(model_id)
+        first = before[0] if before is not None and len(before) else start
+        self._rows[model_id] = np.arange(first, start + len(ids))
         return start if ids else None
 
     def _compact(self) -> None:
@@ -353,4 +427,114 @@ class Relocator:
         """The best stored state if its cosine distance is below ``threshold``, else ``None``."""
         best = self.nearest(features, 1)
         return best[0] if best and best[0].distance < self.threshold else None
+
+    # ------------------------------------------------------------------ persistence
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the fitted index to one ``.npz`` file (atomically): the unit features, which
+        model and state each row is, the search backend's graph and the store revision it was
+        fitted from. :meth:`load` reopens it without the store; :meth:`open` does both."""
+        from kgnav.common.atomic import atomic_open
+
+        if self._dead:
+            self._compact()
+        model_ids = list(self._rows)
+        number = {m: i for i, m in enumerate(model_ids)}
+        n = self.n_states_
+        meta = {"format": INDEX_FORMAT, "version": INDEX_VERSION, "backend": self.backend,
+                "backend_params": self.backend_params, "threshold": self.threshold,
+                "n_candidates": self.n_candidates, "feature_dim": self.feature_dim_,
+                "extractor": self.extractor_, "store_revision": self.store_revision_}
+        arrays = {
+            "meta": np.frombuffer(json.dumps(meta).encode(), np.uint8),
+            "vectors": (self._table.vectors if self._table is not None
+                        else np.zeros((0, self.feature_dim_ or 0), np.float32)),
+            "model_ids": np.array(model_ids, dtype=str),
+            "owner_model": np.fromiter((number[m] for m, _ in self._owners), np.int32, n),
+            "state_ids": np.array([s for _, s in self._owners], dtype=str),
+        }
+        arrays.update({f"backend.{k}": v for k, v in self._backend.state().items()})
+        path = Path(path)
+        with atomic_open(path, "wb") as fh:
+            np.savez(fh, **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> Relocator:
+        """Reopen an index written by :meth:`save`. A file that is not one, or is damaged, is
+        a :class:`~kgnav.errors.KgnavError` naming it."""
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                meta = json.loads(bytes(z["meta"]).decode())
+                if not isinstance(meta, dict) or meta.get("format") != INDEX_FORMAT:
+                    raise ValueError("not a kgnav relocator index")
+                if meta.get("version") != INDEX_VERSION:
+                    raise ValueError(f"index version {meta.get('version')}, this kgnav reads "
+                                     f"version {INDEX_VERSION}")
+                r = cls(threshold=meta["threshold"], backend=meta["backend"],
+                        n_candidates=meta["n_candidates"], backend_params=meta["backend_params"])
+                vectors, owner = z["vectors"], z["owner_model"]
+                model_ids, state_ids = z["model_ids"].tolist(), z["state_ids"].tolist()
+                state = {k[len("backend."):]: z[k] for k in z.files if k.startswith("backend.")}
+        except FileNotFoundError:
+            raise KgnavError(f"{path}: no such relocator index") from None
+        except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile,
+                UnicodeDecodeError) as exc:
+            raise KgnavError(f"{path}: not a usable relocator index ({exc})") from None
+        n = len(state_ids)
+        dim = meta["feature_dim"]
+        if (vectors.dtype != np.float32 or vectors.ndim != 2 or vectors.shape[0] != n
+                or (dim is not None and vectors.shape[1] != dim) or owner.shape != (n,)
+                or (n and not 0 <= int(owner.min()) <= int(owner.max()) < len(model_ids))):
+            raise KgnavError(f"{path}: not a usable relocator index (inconsistent arrays)")
+        r.feature_dim_, r.extractor_ = dim, meta["extractor"]
+        r.store_revision_ = meta["store_revision"]
+        if dim is None:
+            return r
+        r._table = VectorTable(dim)
+        r._table._buf, r._table._alive, r._table.n = vectors, np.ones(n, bool), n
+        r._owners = [(model_ids[i], s) for i, s in zip(owner.tolist(), state_ids, strict=True)]
+        order = np.argsort(owner, kind="stable")
+        bounds = np.cumsum(np.bincount(owner, minlength=len(model_ids)))
+        r._rows = {m: order[(bounds[i - 1] if i else 0):bounds[i]]
+                   for i, m in enumerate(model_ids)}
+        r._backend.restore(r._table, state)
+        return r
+
+    @classmethod
+    def open(cls, store, *, path: str | os.PathLike[str] | None = None, rebuild: bool = False,
+             progress: Callable[[int], None] | None = None, **params) -> Relocator:
+        """A relocator over ``store``: the index saved beside it (``store.index_path()``, or
+        ``path``) when that was fitted from the store as it is now and with the same search
+        backend, else one fitted from the store (streamed, see :meth:`fit`) and saved there
+        for next time. ``params`` are :class:`Relocator`'s; ``threshold`` and
+        ``n_candidates`` apply to a reopened index too.
+
+        A damaged index is refitted, not trusted; an index that cannot be written is a warning
+        (the fitted relocator is still returned).
+        """
+        want = cls(**params)
+        path = Path(path) if path is not None else store.index_path()
+        if not rebuild and os.path.isfile(path):
+            try:
+                have = cls.load(path)
+            except KgnavError:
+                have = None
+            if (have is not None and have.store_revision_ == store.revision()
+                    and have.backend == want.backend
+                    and have.backend_params == want.backend_params):
+                have.threshold, have.n_candidates = want.threshold, want.n_candidates
+                return have
+        want.fit(store, progress=progress)
+        try:
+            want.save(path)
+        except OSError as exc:
+            warnings.warn(f"{path}: relocator index not saved ({exc.strerror or exc})",
+                          stacklevel=2)
+        return want
+
+
+#: What a saved relocator index says it is, and the layout version this code reads.
+INDEX_FORMAT = "kgnav-relocator"
+INDEX_VERSION = 1
 

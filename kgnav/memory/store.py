@@ -35,6 +35,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from filelock import FileLock, Timeout
 
 from kgnav.common import atomic
@@ -58,6 +59,20 @@ class StoreProblem:
 
     def __str__(self) -> str:
         return f"{self.path}: {self.reason}"
+
+
+@dataclass(frozen=True)
+class FeatureBatch:
+    """Some consecutive states of one stored model and their features, as
+    :meth:`ModelStore.feature_batches` streams them to a relocator."""
+
+    model_id: str
+    extractor: str
+    feature_dim: int
+    state_ids: list[str]
+    features: np.ndarray  # (len(state_ids), feature_dim) float32
+    #: The model turned out bad after some of its batches were sent: forget all of it.
+    retract: bool = False
 
 
 #: Where a store keeps its models, by name: ``directory`` (one GraphML file per model, this
@@ -226,6 +241,51 @@ class ModelStore:
             else:
                 problems.append(problem)
         return models, problems
+
+    def reading(self):
+        """A block whose reads share one open store: a no-op for a directory (each model is its
+        own file); a graph database stays open inside it (see
+        :meth:`kgnav.memory.graphdb.GraphDBStore.reading`)."""
+        return contextlib.nullcontext(self)
+
+    def feature_batches(self, problems: list[StoreProblem] | None = None
+                        ) -> Iterator[FeatureBatch]:
+        """Every model's state features, model by model in id order and each model's states in
+        its order, without holding more than one model: what fitting a relocator needs. A model
+        that does not load is skipped and appended to ``problems``."""
+        for model_id, model, problem in self.each():
+            if model is None:
+                if problems is not None:
+                    problems.append(problem)
+                continue
+            ids, feats = model.state_features()
+            yield FeatureBatch(model_id, model.extractor, model.feature_dim, ids, feats)
+
+    def state_count(self) -> int | None:
+        """How many states the store holds, when it can say so without loading models (a
+        directory cannot: None)."""
+        return None
+
+    def revision(self) -> str:
+        """A token that changes whenever a model is saved, replaced or deleted: an index built
+        from the store (:meth:`kgnav.memory.relocator.Relocator.open`) is current while it holds
+        the same token. Here: each model file's name, inode, size and modification time (an
+        atomic save always makes a new inode)."""
+        import hashlib
+
+        h = hashlib.blake2b(digest_size=16)
+        for model_id, path, _problem in self._entries():
+            try:
+                st = os.stat(path)
+            except OSError:
+                continue
+            h.update(f"{model_id}\0{st.st_ino}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+        return "files:" + h.hexdigest()
+
+    def index_path(self) -> Path:
+        """Where a relocator index built from this store is kept (inside the directory, hidden
+        so that it is never taken for a model)."""
+        return self.root / ".relocator.npz"
 
     def check(self) -> tuple[list[str], list[StoreProblem]]:
         """Everything wrong in the store, changing nothing: the ids that load, and a problem per
