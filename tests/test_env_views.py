@@ -150,7 +150,9 @@ def grid_weights(sampler, tmp_path_factory):
     cfg = TrainConfig(seed=0, steps=1, dim=8, houses_per_batch=2, places_per_house=2,
                       split=f"{GRID}:train", n_houses=len(sampler))
     path = tmp_path_factory.mktemp("w") / "grid.npz"
-    Trainer(cfg, sampler=sampler).fit().export(0.05, "test").save(path)
+    weights = Trainer(cfg, sampler=sampler).fit().export(0.05, "test")
+    weights.meta["domain"] = {"env": GRID, "train_split": "train"}  # as train-encoder --env
+    weights.save(path)
     return path
 
 

@@ -404,6 +404,58 @@ def test_observation_violations_are_one_line(change, expected):
     assert expected in _one_line(e.value) and "'grid'" in str(e.value)
 
 
+def test_an_episode_that_declined_labels_may_lack_them():
+    env = GridRoom(0)
+    obs, _ = env.reset()
+    bare = {k: v for k, v in obs.items() if k != "semantic"}
+    check_observation(bare, env.env_spec, semantic=False)
+    for asked in (None, True):
+        with pytest.raises(EnvProtocolError, match="no 'semantic'"):
+            check_observation(bare, env.env_spec, semantic=asked)
+    with pytest.raises(EnvProtocolError, match="'semantic' must be an integer"):  # still checked
+        check_observation({**obs, "semantic": obs["semantic"][..., 0]}, env.env_spec, False)
+
+
+@pytest.mark.parametrize(("variant", "segmenter", "asked"), [
+    ("ans", "depth-only", False),  # nothing reads the labels
+    ("ans", "clean", True),  # the ground-truth segmenter reads them
+    ("si", "depth-only", True),  # the memory's fidelity counts the instances seen
+])
+def test_the_benchmark_asks_for_labels_only_when_something_reads_them(variant, segmenter,
+                                                                       asked, monkeypatch):
+    from kgnav.agent.segmentation import SEGMENTERS
+    from kgnav.nets.segnet.segmenter import ClassMapSegmenter
+
+    seen = []
+
+    class Spy(GridSuite):
+        def make(self, k, n=None):
+            room = super().make(k, n)
+            reset = room.reset
+
+            def spy(*, seed=None, options=None):
+                seen.append(options.get("semantic"))
+                return reset(seed=seed, options=options)
+
+            room.reset = spy
+            return room
+
+    def near_crates(seed=0):  # RGB-D only: anything within a metre is a crate
+        return ClassMapSegmenter(lambda rgb, depth: (depth < 1.0).astype(np.int32),
+                                 name="depth-only", class_names=CLASSES)
+
+    monkeypatch.setitem(SEGMENTERS, "depth-only", near_crates)
+    name = f"grid-spy-{variant}-{segmenter}"  # the runner keeps environments by name
+    register_env(name)(lambda o: Spy(o, hooks=True))
+    try:
+        cfg = EvalConfig(env=name, variants=(variant,), segmenter=segmenter,
+                         extractor="opencv-gist", max_steps=5, episodes=1, scenes=1)
+        run_eval(cfg, None, progress=False)
+    finally:
+        ENVS.pop(name, None)
+    assert seen == [asked]
+
+
 def test_runner_stops_on_a_broken_environment():
     class Broken(GridRoom):
         def _observe(self):

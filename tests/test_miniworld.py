@@ -217,6 +217,40 @@ def test_frames_are_deterministic(suite, env):
     assert np.array_equal(a["semantic"], b["semantic"])
 
 
+def test_labels_are_rendered_only_when_asked_for(env):
+    """An episode that declines labels gets none, and the same RGB and depth, bit for bit."""
+    obs, _ = env.reset(seed=4, options={"episode": 1, "semantic": False})
+    assert "semantic" not in obs and env.env_spec.semantic
+    check_observation(obs, env.env_spec, semantic=False)
+    start = env.world_pose
+    plain = [obs] + [env.step(a)[0] for a in (1, 2, 1, 3)]
+    poses = list(env.trajectory)
+    env.reset(seed=4, options={"episode": 1})
+    assert env.world_pose == start
+    labelled = [_face(env, *p) for p in poses]
+    for a, b in zip(plain, labelled, strict=True):
+        assert "semantic" in b and "semantic" not in a
+        assert np.array_equal(a["rgb"], b["rgb"]) and np.array_equal(a["depth"], b["depth"])
+    rgb, depth, sem = env.render_at(*poses[-1], semantic=False)
+    assert sem is None and np.array_equal(depth, labelled[-1]["depth"])
+
+
+@pytest.mark.parametrize(("fmt", "pitch_sign"), [("RGB", -1), ("RGB", 1), ("RGBA", -1),
+                                                 ("L", -1), ("LA", 1), ("BGRA", -1)])
+def test_textures_load_as_pyglet_converts_them(env, fmt, pitch_sign):
+    """The numpy conversion of MiniWorld's texture pixels gives pyglet's bytes (the upload's
+    data), whatever the decoded format and row order."""
+    import pyglet
+
+    from kgnav.envs.miniworld_render import _rgba_rows
+
+    w, h = 7, 5
+    raw = np.random.default_rng(len(fmt)).integers(0, 256, w * h * len(fmt), np.uint8)
+    img = pyglet.image.ImageData(w, h, fmt, raw.tobytes(), pitch=pitch_sign * w * len(fmt))
+    want = np.frombuffer(img.get_data("RGBA", w * 4), np.uint8).reshape(h, w, 4)
+    assert np.array_equal(_rgba_rows(img), want)
+
+
 def test_mesh_footprints_are_miniworld_s(env):
     """The footprints the floor plan uses (read from the mesh files) are the extents of the
     meshes MiniWorld loaded and scaled."""

@@ -240,6 +240,8 @@ class NoisySegmenter:
     false positives stay within it.
     """
 
+    needs_semantic = True  # it is the ground truth, made noisy
+
     def __init__(
         self,
         noise: SegmenterNoise | str = "default",

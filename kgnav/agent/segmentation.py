@@ -131,6 +131,9 @@ class Segmenter(Protocol):
     by segmenters built on it. The same seeds, scene and frames give the same output. A
     segmenter may name the vocabulary its class ids index (``classes`` or ``class_names``);
     the agent then maps it to the environment's by name (default: kgnav's classes).
+    ``needs_semantic = False`` says it reads RGB-D only, so the benchmark need not ask the
+    environment for the semantic frame (rendering it is not free everywhere); a segmenter that
+    does not say is given it.
     """
 
     name: str

@@ -110,6 +110,9 @@ class EvalConfig:
     address: str | None = None
     env: str = DEFAULT_ENV
     encoder_weights: str | None = None  # kgnav-encoder's weight file (None: the shipped one)
+    segmenter_weights: str | None = None  # the learned segmenter's (None: the shipped one)
+    # run learned weights made for another environment (kgnav.nets.domain) instead of refusing
+    allow_domain_mismatch: bool = False
     store: str = "directory"  # where the memory is written: GraphML files, or "ladybug"
 
     def __post_init__(self):
@@ -127,6 +130,9 @@ class EvalConfig:
         if self.encoder_weights is not None and self.extractor not in ("auto", ENCODER):
             raise KgnavError(f"encoder weights are for extractor {ENCODER!r}, not "
                              f"{self.extractor!r}")
+        if self.segmenter_weights is not None and self.segmenter not in LEARNED_SEGMENTERS:
+            raise KgnavError(f"segmenter weights are for the learned segmenter, not "
+                             f"{self.segmenter!r}")
 
     @property
     def env_options(self) -> EnvOptions:
@@ -158,6 +164,7 @@ EXECUTION = ("workers", "engine", "address", "store")
 
 
 ENCODER = "kgnav-encoder"
+LEARNED_SEGMENTERS = ("learned", "kgnav-segnet")  # the names that take --segmenter-weights
 
 
 def resolve_extractor(name: str, weights: str | None = None) -> str:
@@ -236,6 +243,8 @@ def _make_agent(cfg: EvalConfig, variant: Variant, env: NavEnv, memory: Memory |
 
 def _segmenter(cfg: EvalConfig, spec: EnvSpec):
     """``cfg.segmenter``; a ground-truth one gets the environment's camera and vocabulary."""
+    if cfg.segmenter_weights is not None:
+        return _learned_segmenter(cfg.segmenter, cfg.seed, cfg.segmenter_weights)
     if cfg.segmenter not in GROUND_TRUTH_SEGMENTERS:
         return make_segmenter(cfg.segmenter, cfg.seed)
     if not spec.semantic:
@@ -246,6 +255,37 @@ def _segmenter(cfg: EvalConfig, spec: EnvSpec):
     return make_segmenter(cfg.segmenter, cfg.seed, hfov_deg=cam.hfov_deg,
                           min_depth=cam.min_depth, max_depth=cam.max_depth,
                           classes=spec.classes)
+
+
+def _learned_segmenter(name: str, seed: int, weights: str):
+    """The learned segmenter with ``weights``, its file read once per process."""
+    key = ("segmenter-weights", weights)
+    if key not in _CACHE:
+        from kgnav.nets.segnet.weights import load_weights
+
+        _CACHE[key] = load_weights(weights)
+    return make_segmenter(name, seed, weights=_CACHE[key])
+
+
+def check_domains(cfg: EvalConfig, extractor_name: str) -> None:
+    """Refuse, in one line, learned weights trained on another environment than ``cfg.env``
+    (:mod:`kgnav.nets.domain`): the segmenter's when it is the learned one, the encoder's when
+    the features are its; ``cfg.allow_domain_mismatch`` runs them anyway."""
+    if cfg.allow_domain_mismatch:
+        return
+    from kgnav.nets.domain import check_domain
+
+    if cfg.segmenter in LEARNED_SEGMENTERS:
+        from kgnav.nets.segnet.weights import DEFAULT_WEIGHTS, load_weights
+
+        w = load_weights(cfg.segmenter_weights)
+        check_domain("segmenter", cfg.segmenter_weights or DEFAULT_WEIGHTS, w.meta, cfg.env)
+    if extractor_name == ENCODER:
+        from kgnav.nets.encoder.weights import DEFAULT_WEIGHTS as ENCODER_WEIGHTS
+        from kgnav.nets.encoder.weights import load_weights as load_encoder
+
+        w = load_encoder(cfg.encoder_weights)
+        check_domain("encoder", cfg.encoder_weights or ENCODER_WEIGHTS, w.meta, cfg.env)
 
 
 # ---------------------------------------------------------------------- one episode
@@ -278,6 +318,14 @@ def seen_instances(obs) -> set[int]:
     return {int(i) for i in np.flatnonzero(counts >= SEEN_PIXELS) if i > 0}
 
 
+def needs_semantic(agent, variant: Variant) -> bool:
+    """Whether an episode's frames must carry the ground-truth semantic channel: for a segmenter
+    that reads it, and for the instances a learning variant's memory is scored against
+    (:func:`seen_instances`). Otherwise the environment is told it may skip the labels."""
+    seg = getattr(agent, "segmenter", None)
+    return variant.learns or (seg is not None and getattr(seg, "needs_semantic", True))
+
+
 def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, round_: int,
                 extractor_name: str, topdown: str | None = None) -> Outcome:
     """One episode of ``variant``; ``topdown``: where to draw it from above (PNG)."""
@@ -286,8 +334,9 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     memory = _ROUND.get("memory") if variant.memory else None
     agent = _make_agent(cfg, variant, env, memory, extractor_name)
     seed = episode_seed(cfg.seed, scene, episode)
-    obs, info = env.reset(seed=seed, options={"episode": episode})
-    check_observation(obs, spec)
+    labels = needs_semantic(agent, variant)
+    obs, info = env.reset(seed=seed, options={"episode": episode, "semantic": labels})
+    check_observation(obs, spec, labels)
     goal = spec.class_name(int(np.asarray(obs["objectgoal"]).reshape(-1)[0]))
     name = scene_name(env, cfg, scene)
     agent.reset(goal, seed=seed, scene=name, episode=scene * 1000 + episode,
@@ -298,7 +347,7 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     done, steps = False, 0
     while not done:
         obs, _r, term, trunc, info = env.step(agent.act(obs))
-        check_observation(obs, spec)
+        check_observation(obs, spec, labels)
         steps += 1
         done = term or trunc
         if variant.learns:
@@ -917,6 +966,7 @@ def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = Tr
     episode, rounds in order), ``summary.json`` (per variant) and ``config.json``.
     Returns (records, summary)."""
     extractor_name = resolve_extractor(cfg.extractor, cfg.encoder_weights)
+    check_domains(cfg, extractor_name)
     features = _extractor(extractor_name, cfg.encoder_weights).name  # weights' fingerprint
     out_dir = Path(out) if out is not None else None
     engine = make_engine(cfg.engine, cfg.workers, cfg.address, _worker_init)

@@ -102,6 +102,14 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
 @click.option("--segmenter", type=click.Choice(["learned", *sorted(SEGMENTER_PRESETS)]),
               default="learned", show_default=True,
               help="learned: the RGB-D network; or a noise preset on ground truth ('clean').")
+@click.option("--segmenter-weights", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, metavar="FILE",
+              help="Weights of the learned segmenter [default: the shipped ones, trained on "
+                   "kgnav's simulator], e.g. trained on another environment's frames "
+                   "(train-segmenter --env).")
+@click.option("--allow-domain-mismatch", is_flag=True,
+              help="Run learned segmenter or encoder weights trained on another environment "
+                   "than --env (refused otherwise: they see another visual domain).")
 @click.option("--extractor", default="auto", show_default=True,
               help="State features: kgnav-encoder, opencv-gist, or auto (the encoder if it "
                    "loads).")
@@ -138,8 +146,9 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
                    "the same.")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, workers, engine,
-             address, segmenter, extractor, threshold, encoder_weights, pre_explore_steps, show,
-             noise, preset, policy, seed, store, quiet) -> None:
+             address, segmenter, segmenter_weights, allow_domain_mismatch, extractor, threshold,
+             encoder_weights, pre_explore_steps, show, noise, preset, policy, seed, store,
+             quiet) -> None:
     """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
     from kgnav.agent.loop import PRESETS
     from kgnav.agent.policy import make_policy, policy_names
@@ -165,6 +174,13 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
         from kgnav.nets.encoder.weights import load_weights
 
         load_weights(encoder_weights)  # one line, exit 1, when the file does not load
+    if segmenter_weights is not None:
+        if segmenter != "learned":
+            raise click.BadParameter(f"weights of the learned segmenter, but --segmenter is "
+                                     f"{segmenter!r}", param_hint="--segmenter-weights")
+        from kgnav.nets.segnet.weights import load_weights as load_segmenter
+
+        load_segmenter(segmenter_weights)  # one line, exit 1, when the file does not load
     from kgnav.benchmark.runner import EvalConfig, run_eval
 
     cfg = EvalConfig(split=split, scenes_dir=None if scenes_dir is None else str(scenes_dir),
@@ -177,7 +193,9 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
                      forget_label_share=0.5 if preset == "default" else 0.0,
                      preset=preset, policy=policy, env=env_name,
                      encoder_weights=None if encoder_weights is None else str(encoder_weights),
-                     store=store)
+                     segmenter_weights=None if segmenter_weights is None
+                     else str(segmenter_weights),
+                     allow_domain_mismatch=allow_domain_mismatch, store=store)
     if show is None:  # the first house's last episode
         cfg = replace(cfg, show=(0, cfg.suite.episode_count(0, episodes) - 1))
     _records, summary = run_eval(cfg, out_dir, progress=not quiet)

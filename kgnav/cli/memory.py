@@ -239,6 +239,48 @@ def store_convert(source: Path, dest: Path) -> None:
     out.print(safe(f"{source} -> {dest}: {copied} models"))
 
 
+@store_app.command("index")
+@click.argument("store", metavar="STORE", type=click.Path(path_type=Path))
+@click.option("--backend", type=click.Choice(["exact", "hnsw"]), default="exact",
+              show_default=True, help="Search: exact, or HNSW (needs faiss) for 1e5+ states.")
+@click.option("--rebuild", is_flag=True, help="Fit again even if the saved index is current.")
+@_JSON
+def store_index(store: Path, backend: str, rebuild: bool, as_json: bool) -> None:
+    """Fit the relocator over STORE and save its index beside it (reused while the store is
+    unchanged). Features are streamed from the store: a database's models are never loaded."""
+    import time
+
+    from rich.progress import Progress
+
+    from kgnav.memory.relocator import Relocator
+
+    st = _open_store(store)
+    path = st.index_path()
+
+    def stamp():
+        return path.stat().st_mtime_ns if path.is_file() else None
+
+    before, t = stamp(), time.perf_counter()
+    with Progress(console=_stderr(), transient=True) as bar:
+        task = bar.add_task("indexing", total=st.state_count())
+        r = Relocator.open(st, backend=backend, rebuild=rebuild,
+                           progress=lambda n: bar.advance(task, n))
+    took = time.perf_counter() - t
+    fitted = before is None or stamp() != before
+    for p in r.problems_:
+        click.echo(f"kgnav: warning: skipped {safe(p)}", err=True)
+    report = {"store": str(store), "index": str(path), "backend": backend,
+              "models": len(r.model_ids_), "states": r.n_states_,
+              "feature_dim": r.feature_dim_, "seconds": round(took, 2),
+              "skipped": len(r.problems_), "fitted": fitted}
+    if as_json:
+        _emit_json(report)
+    else:
+        out.print(safe(f"{path}: {r.n_states_} states of {len(r.model_ids_)} models "
+                       f"({backend}, {took:.1f} s, "
+                       f"{'fitted' if fitted else 'saved index was current'})"))
+
+
 @click.command("cypher")
 @click.argument("store", type=click.Path(path_type=Path))
 @click.argument("query")

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import click
 
+from kgnav.agent.noise_segmenters import GROUND_TRUTH_SEGMENTERS
 from kgnav.cli._training import (
     OUT_FILE,
     finished,
@@ -18,11 +19,37 @@ from kgnav.cli._training import (
     set_threads,
     training_options,
 )
+from kgnav.cli.encoder import KGNAV, domain, env_options
+from kgnav.errors import KgnavError
 from kgnav.nets.segnet.train import SegTrainConfig
 from kgnav.sim.episodes import SPLITS
 
 _D = SegTrainConfig()
 CALIBRATION_SEED = 3  # frames of the train houses for the score threshold (not training's)
+ENV_SCENES = 12  # scenes walked of another environment's split unless --scenes says
+
+
+def _walk(env_name: str, split: str, scenes: int | None, walk_steps: int, seed: int,
+          desc: str, quiet: bool):
+    """Labelled views of an environment's split walked through its protocol
+    (:class:`~kgnav.nets.segnet.env_data.EnvLabelledViews`); usage errors name the option."""
+    from tqdm import tqdm
+
+    from kgnav.envs import EnvOptions, make_env
+    from kgnav.nets.segnet.env_data import EnvLabelledViews
+
+    try:
+        suite = make_env(env_name, EnvOptions(split=split))
+    except KgnavError as exc:
+        raise click.BadParameter(str(exc), param_hint="--env/--split") from None
+    n = min(scenes or ENV_SCENES, len(suite))
+    if n < 1:
+        raise click.BadParameter(f"environment {env_name!r} split {split!r} has no scenes",
+                                 param_hint="--split")
+    with tqdm(total=n * walk_steps, desc=desc, unit="view", disable=quiet, dynamic_ncols=True,
+              mininterval=1.0) as bar:
+        return EnvLabelledViews.from_suite(suite, range(n), walk_steps, seed,
+                                           progress=lambda done, total: bar.update(done - bar.n))
 
 
 @click.command("train-segmenter")
@@ -37,51 +64,88 @@ CALIBRATION_SEED = 3  # frames of the train houses for the score threshold (not 
 @click.option("--calibrate-frames", default=300, show_default=True,
               type=click.IntRange(min=0),
               help="Train-house frames to calibrate the segment-score threshold on (0: none).")
-@click.option("--split", default=_D.split, show_default=True,
-              type=click.Choice([s for s in SPLITS if s.startswith("train")]),
-              help="Houses to train and calibrate on (the shipped weights: train).")
+@click.option("--split", default=None,
+              help="Scenes to train and calibrate on [default: train; for kgnav one of "
+                   f"{', '.join(s for s in SPLITS if s.startswith('train'))}].")
+@env_options
 @training_options(threads_default=1)
 def train_segmenter(out: Path, seed: int, steps: int, batch: int, calibrate_frames: int,
-                    split: str, time_budget: float | None, resume: bool,
-                    checkpoint: Path | None, checkpoint_every: int, device: str, threads: int,
-                    quiet: bool) -> None:
+                    split: str | None, env_name: str, scenes: int | None, walk_steps: int,
+                    time_budget: float | None, resume: bool, checkpoint: Path | None,
+                    checkpoint_every: int, device: str, threads: int, quiet: bool) -> None:
     """Train the RGB-D segmenter on frames of the train houses; write weights with metadata.
 
     The same --seed, --steps and --batch give the same weights (CPU, same --threads). After
     training, the segment-score threshold with the best F1 on frames of the train houses is
     stored with the weights. Val houses are never rendered here: measure on them with
-    `kgnav segmenter-bench`.
+    `kgnav segmenter-bench`. With --env, the frames are walked through another environment's
+    protocol and labelled by its semantic channel (at training time only); the weights then
+    label its classes and record it as their domain, which `kgnav eval --env` checks.
     """
-    from tqdm import tqdm
-
     from kgnav.nets.segnet.train import SegTrainer
 
+    kgnav_env = env_name == KGNAV
+    split = split or _D.split
+    trains = [s for s in SPLITS if s.startswith("train")]
+    if kgnav_env and split not in trains:
+        raise click.BadParameter(f"{split!r} is not one of {', '.join(trains)}",
+                                 param_hint="--split")
     ckpt, dev = prepare(out, checkpoint, resume, device, threads)
-    trainer = SegTrainer(SegTrainConfig(seed=seed, steps=steps, batch=batch, split=split),
-                         device=dev, threads=threads)
+    if kgnav_env:
+        sampler = None
+        cfg = SegTrainConfig(seed=seed, steps=steps, batch=batch, split=split,
+                             n_houses=scenes or _D.n_houses)
+    else:
+        sampler = _walk(env_name, split, scenes, walk_steps, seed,
+                        f"walking {env_name} {split}", quiet)
+        cfg = SegTrainConfig(seed=seed, steps=steps, batch=batch, split=split,
+                             n_houses=len(sampler), env=env_name, classes=sampler.classes,
+                             walk_steps=walk_steps)
+    trainer = SegTrainer(cfg, device=dev, sampler=sampler, threads=threads)
     run_training(trainer, ckpt, resume, "train-segmenter", time_budget, checkpoint_every, quiet)
     weights = trainer.export()
     if calibrate_frames:
-        from kgnav.nets.segnet.bench import calibrate_min_score, render_frames
-        from kgnav.nets.segnet.segmenter import LearnedSegmenter
-
-        with tqdm(total=calibrate_frames, desc="calibrating on train frames", unit="frame",
-                  disable=quiet, dynamic_ncols=True, mininterval=1.0) as bar:
-            frames = render_frames(split, calibrate_frames, seed=CALIBRATION_SEED,
-                                   progress=lambda k: bar.update(k - bar.n))
-        thr, curve = calibrate_min_score(LearnedSegmenter(weights, device=dev), frames)
-        weights.meta["score_threshold"] = thr
-        weights.meta["score_threshold_source"] = (
-            f"best F1 of instance recall and segment precision on {calibrate_frames} frames "
-            f"of the {split} houses, seed {CALIBRATION_SEED}")
-        weights.meta["score_threshold_curve"] = curve
+        _calibrate(weights, env_name, split, scenes, calibrate_frames, dev, quiet)
     weights.save(out)
     click.echo(f"{finished(trainer)}, {threads} thread(s) on {dev}); score threshold "
                f"{weights.score_threshold:.2f}; weights -> {out}; checkpoint {ckpt}")
     if not trainer.done:
+        more = "" if kgnav_env else (f" --env {env_name} --walk-steps {walk_steps}"
+                                     f" --scenes {len(sampler)}")
         click.echo(f"continue with: kgnav train-segmenter --resume --out {out} --checkpoint "
                    f"{ckpt} --seed {seed} --steps {steps} --batch {batch} --threads {threads} "
-                   f"--calibrate-frames {calibrate_frames} --split {split}", err=True)
+                   f"--calibrate-frames {calibrate_frames} --split {split}{more}", err=True)
+
+
+def _calibrate(weights, env_name: str, split: str, scenes: int | None, n: int, dev: str,
+               quiet: bool) -> None:
+    """Store in ``weights`` the segment-score threshold with the best F1 on ``n`` frames of
+    the training scenes (seed :data:`CALIBRATION_SEED`, not the training frames)."""
+    import math
+
+    from tqdm import tqdm
+
+    from kgnav.nets.segnet.bench import calibrate_min_score, render_frames, walked_frames
+    from kgnav.nets.segnet.segmenter import LearnedSegmenter
+
+    if env_name == KGNAV:
+        with tqdm(total=n, desc="calibrating on train frames", unit="frame",
+                  disable=quiet, dynamic_ncols=True, mininterval=1.0) as bar:
+            frames = render_frames(split, n, seed=CALIBRATION_SEED,
+                                   progress=lambda k: bar.update(k - bar.n))
+        where = f"the {split} houses"
+    else:
+        # twice as many views as frames drawn, so that the class-balanced draw has a choice
+        views = _walk(env_name, split, scenes, max(10, math.ceil(2 * n / (scenes or ENV_SCENES))),
+                      CALIBRATION_SEED, f"walking {env_name} {split} to calibrate", quiet)
+        frames = walked_frames(views, n, CALIBRATION_SEED)
+        where = f"environment {env_name}'s {split} scenes (walked)"
+    thr, curve = calibrate_min_score(LearnedSegmenter(weights, device=dev), frames)
+    weights.meta["score_threshold"] = thr
+    weights.meta["score_threshold_source"] = (
+        f"best F1 of instance recall and segment precision on {n} frames of {where}, seed "
+        f"{CALIBRATION_SEED}")
+    weights.meta["score_threshold_curve"] = curve
 
 
 _PRESETS = ("clean", "default", "heavy")
@@ -97,8 +161,9 @@ def _parse_segmenters(ctx, param, value: str) -> list[str]:
 
 
 @click.command("segmenter-bench")
-@click.option("--split", default="val", show_default=True, type=click.Choice(list(SPLITS)),
-              help="Houses to render (val: never seen in training).")
+@click.option("--split", default="val", show_default=True,
+              help=f"Houses to render (val: never seen in training); for kgnav one of "
+                   f"{', '.join(SPLITS)}, another environment's own names otherwise.")
 @click.option("--out", "out_dir", required=True,
               type=click.Path(file_okay=False, path_type=Path),
               help="Directory for segmenter_bench.json and confusion.png.")
@@ -113,11 +178,18 @@ def _parse_segmenters(ctx, param, value: str) -> list[str]:
               help="Seed of the frames (and of the noise presets).")
 @click.option("--object-share", default=0.5, show_default=True,
               type=click.FloatRange(0, 1), help="Share of frames aimed at an object.")
+@env_options
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def segmenter_bench(split: str, out_dir: Path, n_frames: int, segmenters: list[str],
-                    weights: Path | None, seed: int, object_share: float, quiet: bool) -> None:
+                    weights: Path | None, seed: int, object_share: float, env_name: str,
+                    scenes: int | None, walk_steps: int, quiet: bool) -> None:
     """IoU, instance precision/recall by distance and size, false positives, confusions and
-    time per frame of segmenters on the same rendered frames."""
+    time per frame of segmenters on the same rendered frames.
+
+    With --env, on frames walked through another environment's protocol, scored against its
+    semantic channel in its vocabulary (a segmenter labelling other classes is mapped to it by
+    name, the rest dropped); frames "aimed at an object" are walked frames showing one.
+    """
     import json
 
     from rich.console import Console
@@ -125,14 +197,23 @@ def segmenter_bench(split: str, out_dir: Path, n_frames: int, segmenters: list[s
 
     from kgnav.agent.segmentation import make_segmenter
     from kgnav.common.atomic import atomic_open
+    from kgnav.common.classes import OBJECT_CLASSES
     from kgnav.errors import KgnavError
-    from kgnav.nets.segnet.bench import bench, plot_confusion, render_frames
+    from kgnav.nets.segnet.bench import bench, plot_confusion, render_frames, walked_frames
 
+    kgnav_env = env_name == KGNAV
+    if kgnav_env and split not in SPLITS:
+        raise click.BadParameter(f"{split!r} is not one of {', '.join(SPLITS)}",
+                                 param_hint="--split")
     if out_dir.exists() and not out_dir.is_dir():
         raise click.BadParameter(f"{out_dir} is not a directory", param_hint="--out")
+    # the segmenters first: a bad name is a usage error before any frame is rendered
+    classes, truth = (OBJECT_CLASSES, {}) if kgnav_env else _env_truth(env_name, split)
     segs = []
     for name in segmenters:
         params = {"weights": weights} if name in ("learned", "kgnav-segnet") and weights else {}
+        if name in GROUND_TRUTH_SEGMENTERS:
+            params = truth  # the presets label the environment's classes, sized by its camera
         try:
             segs.append((name, make_segmenter(name, seed, **params)))
         except KgnavError as exc:
@@ -140,19 +221,25 @@ def segmenter_bench(split: str, out_dir: Path, n_frames: int, segmenters: list[s
                 raise click.BadParameter(str(exc), param_hint="--segmenters") from None
             raise
     set_threads(1)
-    with tqdm(total=n_frames, desc=f"rendering {split} frames", unit="frame", disable=quiet,
-              dynamic_ncols=True, mininterval=1.0) as bar:
-        frames = render_frames(split, n_frames, seed, object_share,
-                               progress=lambda k: bar.update(k - bar.n))
+    if kgnav_env:
+        with tqdm(total=n_frames, desc=f"rendering {split} frames", unit="frame",
+                  disable=quiet, dynamic_ncols=True, mininterval=1.0) as bar:
+            frames = render_frames(split, n_frames, seed, object_share,
+                                   progress=lambda k: bar.update(k - bar.n))
+    else:
+        views = _walk(env_name, split, scenes, walk_steps, seed, f"walking {env_name} {split}",
+                      quiet)
+        frames = walked_frames(views, n_frames, seed, object_share)
     with tqdm(total=n_frames * len(segs), desc="segmenting", unit="frame", disable=quiet,
               dynamic_ncols=True, mininterval=1.0) as bar:
         def progress(label: str, k: int) -> None:
             bar.update(1)
             bar.set_postfix(segmenter=label, refresh=False)
 
-        scorers = bench(segs, frames, progress=progress)
+        scorers = bench(segs, frames, progress=progress, classes=classes)
     results = {label: {"name": seg.name, **scorers[label].report()} for label, seg in segs}
-    report = {"format": "kgnav-segmenter-bench", "version": 1, "split": split, "seed": seed,
+    report = {"format": "kgnav-segmenter-bench", "version": 1, "env": env_name,
+              "classes": list(classes), "split": split, "seed": seed,
               "frames": n_frames, "object_share": object_share,
               "houses": sorted(set(frames.scenes)), "min_pixels": 20, "segmenters": results}
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -160,15 +247,36 @@ def segmenter_bench(split: str, out_dir: Path, n_frames: int, segmenters: list[s
         json.dump(report, fh, indent=1)
     plot_confusion({label: scorers[label].conf for label in list(scorers)[:2]},
                    out_dir / "confusion.png",
-                   title=f"pixel confusion on {split}: {n_frames} frames, seed {seed}")
+                   title=f"pixel confusion on {domain(env_name, split)}: {n_frames} frames, "
+                         f"seed {seed}", classes=classes)
     con = Console(highlight=False, soft_wrap=True)
     if not con.is_terminal:  # a log file or pipe: do not squeeze the table to 80 columns
         con = Console(highlight=False, soft_wrap=True, width=140)
-    con.print(bench_table(results, f"segmenters on {split}: {n_frames} frames, seed {seed}"))
+    con.print(bench_table(results, f"segmenters on {domain(env_name, split)}: {n_frames} "
+                                   f"frames, seed {seed}"))
     for label, r in results.items():
         pairs = ", ".join(f"{t}->{p} {n}" for t, p, n in r["confusion_pairs"][:8]) or "none"
         con.print(f"{label}: mislabelled segments (true->predicted): {pairs}")
     con.print(f"wrote {out_dir / 'segmenter_bench.json'} and {out_dir / 'confusion.png'}")
+
+
+def _env_truth(env_name: str, split: str) -> tuple[tuple[str, ...], dict]:
+    """An environment's vocabulary, and what a noise preset needs of it: its camera and that
+    vocabulary (no frame is rendered here)."""
+    from kgnav.agent.camera import Camera
+    from kgnav.envs import EnvOptions, make_env
+
+    try:
+        suite = make_env(env_name, EnvOptions(split=split))
+    except KgnavError as exc:
+        raise click.BadParameter(str(exc), param_hint="--env/--split") from None
+    if not len(suite):
+        raise click.BadParameter(f"environment {env_name!r} split {split!r} has no scenes",
+                                 param_hint="--split")
+    spec = suite.make(0, 1).env_spec
+    cam = Camera.from_spec(spec.camera)
+    return spec.classes, {"hfov_deg": cam.hfov_deg, "min_depth": cam.min_depth,
+                          "max_depth": cam.max_depth, "classes": spec.classes}
 
 
 def bench_table(results: dict, title: str):
@@ -183,7 +291,7 @@ def bench_table(results: dict, title: str):
         table.add_row(label, *(_fmt(get(r)) for r in results.values()))
 
     row("mean IoU (classes present)", lambda r: r["mean_iou"])
-    row("mean IoU, 6 goal classes", lambda r: r["mean_iou_goal"])
+    row("mean IoU, goal classes", lambda r: r["mean_iou_goal"])
     row("instance recall (all / goal)", lambda r: (r["recall"], r["recall_goal"]))
     row("segment precision", lambda r: r["precision"])
     for _, _, band in DIST_BANDS:

@@ -10,7 +10,8 @@ Seeded multi-room houses (:mod:`kgnav.envs.miniworld_house`) rendered by MiniWor
   house's navigable grid with kgnav's motion rule (optional actuation and odometry noise as in
   kgnav's simulator);
 * classes: :data:`~kgnav.envs.miniworld_house.CLASSES`; the ``semantic`` frame (class and
-  instance ids) comes from the adapter's label pass;
+  instance ids) comes from the adapter's label pass, read back only for episodes that ask for
+  it (``reset(options={"semantic": False})`` skips it);
 * ground truth: every hook of :data:`kgnav.envs.GROUND_TRUTH_HOOKS` (SPL and the other metrics
   with geodesic distances over the navigable grid, episode starts, the objects, the navigable
   map and true pose for the oracle, a picture from above).
@@ -115,12 +116,15 @@ class MiniWorldNav:
         self._class_of = np.array([0] + [CLASSES.index(o.cls) + 1 for o in house.objects],
                                   np.int32)
         self._world = self.episodes[0].start
+        self._semantic = True
         self.trajectory: list[tuple[float, float, float]] = []
 
     # ------------------------------------------------------------------ protocol
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        i = int((options or {}).get("episode", 0))
+        options = options or {}
+        i = int(options.get("episode", 0))
         self.i = i
+        self._semantic = bool(options.get("semantic", True))
         self.episode = self.episodes[i]
         rng = np.random.default_rng([0 if seed is None else int(seed), 0x4D57])
         self.dynamics = Dynamics(self.nav, self.noise, np.random.default_rng(rng.integers(2**31)))
@@ -183,16 +187,17 @@ class MiniWorldNav:
         c, s = math.cos(st), math.sin(st)
         return sx + c * x - s * y, sy + s * x + c * y
 
-    def render_at(self, x: float, y: float, theta: float):
-        """(RGB, z-depth clipped to the camera's range, semantic (H, W, 2)) from a world pose."""
+    def render_at(self, x: float, y: float, theta: float, semantic: bool = True):
+        """(RGB, z-depth clipped to the camera's range, semantic (H, W, 2) or None unless
+        ``semantic``) from a world pose."""
         if self._renderer is None:
             from kgnav.envs.miniworld_render import MiniWorldRenderer
 
             self._renderer = MiniWorldRenderer(self.house, self.env_spec.camera)
-        rgb, z, ids = self._renderer.render(x, y, theta)
+        rgb, z, ids = self._renderer.render(x, y, theta, labels=semantic)
         cam = self.env_spec.camera
         depth = np.clip(z, cam.min_depth, cam.max_depth).astype(np.float32)
-        return rgb, depth, np.stack([self._class_of[ids], ids], -1)
+        return rgb, depth, None if ids is None else np.stack([self._class_of[ids], ids], -1)
 
     def topdown(self, path=None, agent_map=None, map_resolution: float = 0.05,
                 map_origin=(0.0, 0.0), **_kw):
@@ -203,7 +208,7 @@ class MiniWorldNav:
 
         from kgnav.sim.topdown import write_png
 
-        self.render_at(*self._world)  # opens the renderer if needed
+        self.render_at(*self._world, semantic=False)  # opens the renderer if needed
         img, sc = self._renderer.top_view()
         img = np.ascontiguousarray(img)
 
@@ -222,10 +227,12 @@ class MiniWorldNav:
 
     # ------------------------------------------------------------------ internals
     def _observe(self, pose) -> dict[str, Any]:
-        rgb, depth, sem = self.render_at(*self._world)
-        return {"rgb": rgb, "depth": depth, "semantic": sem,
-                "pose": np.asarray(pose, np.float64),
-                "objectgoal": np.int64(CLASSES.index(self.episode.goal_class) + 1)}
+        rgb, depth, sem = self.render_at(*self._world, semantic=self._semantic)
+        obs = {"rgb": rgb, "depth": depth, "pose": np.asarray(pose, np.float64),
+               "objectgoal": np.int64(CLASSES.index(self.episode.goal_class) + 1)}
+        if sem is not None:
+            obs["semantic"] = sem
+        return obs
 
     def _info(self, collided: bool) -> dict[str, Any]:
         x, y, _t = self._world

@@ -13,7 +13,16 @@ display; on Debian the packages libegl1 libegl-mesa0 libgl1-mesa-dri libglu1-mes
 is imported here only, when the first frame is asked for, so kgnav works without it.
 
 pyglet shares display lists between its contexts and MiniWorld compiles every world's static
-geometry into list 1, so a world recompiles it when another world drew last.
+geometry into list 1, so a world recompiles it when another world drew last. The label pass
+draws its rooms from a display list of its own (an id from ``glGenLists``, so no world
+overwrites another's), compiled once: drawn command by command they cost 1.4 ms a frame.
+
+Labels are read back only when asked for (``render(..., labels=True)``): depth comes from the
+same pass either way, so a frame without labels has the same depth, bit for bit.
+
+Loading MiniWorld's textures through pyglet converted each image to RGBA with a regular
+expression per pixel: 10 s per process, more than a whole short run. :func:`_fast_textures`
+converts the same decoded pixels with numpy instead (same bytes uploaded).
 """
 
 from __future__ import annotations
@@ -33,8 +42,53 @@ _NEAR, _FAR = 0.05, 50.0  # the label pass's clip planes (MiniWorld's RGB pass: 
 _LAST: list = [None]  # the world whose static geometry display list 1 holds now
 
 
+@contextlib.contextmanager
+def _fast_textures(gl, opengl):
+    """MiniWorld's ``Texture.load`` with the image's pixels converted by numpy, not pyglet's
+    per-pixel regular expression; the GL calls and the bytes uploaded are MiniWorld's."""
+    cls = opengl.Texture
+    original = cls.__dict__["load"]
+
+    def load(_cls, tex_path):
+        import pyglet
+
+        img = pyglet.image.load(tex_path)
+        tex = img.get_texture()
+        gl.glEnable(tex.target)
+        gl.glBindTexture(tex.target, tex.id)
+        rgba = _rgba_rows(img.get_image_data())
+        gl.glTexImage2D(gl.GL_TEXTURE_2D, 0, gl.GL_RGB, img.width, img.height, 0, gl.GL_RGBA,
+                        gl.GL_UNSIGNED_BYTE, rgba.ctypes.data_as(ctypes.POINTER(gl.GLubyte)))
+        gl.glHint(gl.GL_GENERATE_MIPMAP_HINT, gl.GL_NICEST)
+        gl.glGenerateMipmap(gl.GL_TEXTURE_2D)
+        gl.glTexParameteri(gl.GL_TEXTURE_2D, gl.GL_TEXTURE_MAG_FILTER, gl.GL_LINEAR)
+        gl.glTexParameteri(gl.GL_TEXTURE_2D, gl.GL_TEXTURE_MIN_FILTER,
+                           gl.GL_LINEAR_MIPMAP_LINEAR)
+        gl.glBindTexture(gl.GL_TEXTURE_2D, 0)
+        return tex
+
+    cls.load = classmethod(load)
+    try:
+        yield
+    finally:
+        cls.load = original
+
+
+def _rgba_rows(data) -> np.ndarray:
+    """The pixels of a pyglet ``ImageData`` as ``get_data("RGBA", 4 * width)`` returns them:
+    rows bottom to top, and a component the format lacks taken from its first one (pyglet's
+    rule: RGB gives A = R, L gives L, L, L, L)."""
+    fmt, pitch, w, h = data.format, data.pitch, data.width, data.height
+    raw = np.frombuffer(data.get_data(fmt, pitch), np.uint8)  # no conversion: as decoded
+    px = raw.reshape(h, abs(pitch))[:, :w * len(fmt)].reshape(h, w, len(fmt))
+    if pitch < 0:  # stored top to bottom
+        px = px[::-1]
+    return np.ascontiguousarray(px[..., [fmt.index(c) if c in fmt else 0 for c in "RGBA"]])
+
+
 def _modules():
-    """(pyglet.gl, miniworld.miniworld, miniworld.entity), importing them headless."""
+    """(pyglet.gl, miniworld.miniworld, miniworld.entity, miniworld.opengl), importing them
+    headless."""
     try:
         import pyglet
     except ImportError:
@@ -51,7 +105,9 @@ def _modules():
         raise KgnavError(f"MiniWorld cannot open a headless OpenGL context "
                          f"({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}); "
                          f"on Debian: apt-get install {MESA_PACKAGES}") from None
-    return gl, miniworld, entity
+    from miniworld import opengl
+
+    return gl, miniworld, entity, opengl
 
 
 class MiniWorldRenderer:
@@ -63,7 +119,7 @@ class MiniWorldRenderer:
 
     def __init__(self, house: House, camera):
         self.house, self.camera = house, camera
-        gl, mw, ent = _modules()
+        gl, mw, ent, opengl = _modules()
         self._gl = gl
         renderer = self
 
@@ -73,7 +129,7 @@ class MiniWorldRenderer:
 
         try:
             # (MiniWorld prints the multisampling it falls back to on stdout, the tables' stream)
-            with contextlib.redirect_stdout(io.StringIO()):
+            with contextlib.redirect_stdout(io.StringIO()), _fast_textures(gl, opengl):
                 self.world = World(obs_width=camera.width, obs_height=camera.height,
                                    window_width=320, window_height=240,
                                    max_episode_steps=10**9)
@@ -94,6 +150,7 @@ class MiniWorldRenderer:
         w._render_static()
         _LAST[0] = w
         self._fbo = _LabelBuffer(gl, camera.width, camera.height)
+        self._rooms = self._compile_label_scene()
         self.pid = os.getpid()
 
     # ------------------------------------------------------------------ scene
@@ -122,10 +179,10 @@ class MiniWorldRenderer:
         world.place_agent(pos=np.array([x, 0.0, -y]), dir=t)
 
     # ------------------------------------------------------------------ frames
-    def render(self, x: float, y: float, theta: float
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def render(self, x: float, y: float, theta: float, labels: bool = True
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """(RGB uint8 (H, W, 3), z-depth float32 (H, W) in metres, instance ids int32 (H, W),
-        0 where no object) seen from world pose (x, y, θ)."""
+        0 where no object) seen from world pose (x, y, θ); ids are None unless ``labels``."""
         if os.getpid() != self.pid:
             raise KgnavError("a MiniWorld renderer cannot cross a fork: build the environment "
                              "in the process that renders it")
@@ -137,10 +194,25 @@ class MiniWorldRenderer:
             w._render_static()
             _LAST[0] = w
         rgb = w.render_obs().copy()
-        ids, depth = self._labels()
+        ids, depth = self._labels(labels)
         return rgb, depth, ids
 
-    def _labels(self) -> tuple[np.ndarray, np.ndarray]:
+    def _compile_label_scene(self) -> int:
+        """A display list of the label pass's rooms (walls, floors, ceilings: fixed).
+
+        The objects stay drawn command by command: compiled into a list, some of their depth
+        values came out up to 2e-5 m different (Mesa's display-list path), and frames must not
+        depend on this optimisation."""
+        gl = self._gl
+        self.world.shadow_window.switch_to()
+        lst = gl.glGenLists(1)
+        gl.glNewList(lst, gl.GL_COMPILE)
+        for room in self.world.rooms:
+            room._render()
+        gl.glEndList()
+        return lst
+
+    def _labels(self, labels: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
         gl, w, cam = self._gl, self.world, self.camera
         w.shadow_window.switch_to()
         self._fbo.bind()
@@ -161,20 +233,20 @@ class MiniWorldRenderer:
         gl.glEnable(gl.GL_FOG)
         gl.glFogi(gl.GL_FOG_MODE, gl.GL_EXP)
         gl.glFogf(gl.GL_FOG_DENSITY, 1e5)  # exp(-1e5 z) is 0 beyond the near plane
-        black = (gl.GLfloat * 4)(0.0, 0.0, 0.0, 1.0)
-        gl.glFogfv(gl.GL_FOG_COLOR, black)
-        for room in w.rooms:
-            room._render()
+        gl.glFogfv(gl.GL_FOG_COLOR, (gl.GLfloat * 4)(0.0, 0.0, 0.0, 1.0))
+        gl.glCallList(self._rooms)
         for k, e in enumerate(self.entities, 1):
             gl.glFogfv(gl.GL_FOG_COLOR, (gl.GLfloat * 4)((k & 255) / 255.0, (k >> 8) / 255.0,
                                                           0.0, 1.0))
             e.render()
         gl.glDisable(gl.GL_FOG)
         gl.glEnable(gl.GL_MULTISAMPLE)
-        rgb, d = self._fbo.read()
-        ids = rgb[..., 0].astype(np.int32) + (rgb[..., 1].astype(np.int32) << 8)
+        rgb, d = self._fbo.read(colour=labels)
         # window depth -> eye z (the projection's inverse)
         z = 2.0 * _NEAR * _FAR / (_FAR + _NEAR - (2.0 * d - 1.0) * (_FAR - _NEAR))
+        if rgb is None:
+            return None, z.astype(np.float32)
+        ids = rgb[..., 0].astype(np.int32) + (rgb[..., 1].astype(np.int32) << 8)
         return ids, z.astype(np.float32)
 
     def top_view(self) -> tuple[np.ndarray, dict]:
@@ -216,15 +288,17 @@ class _LabelBuffer:
         gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, self.fbo)
         gl.glViewport(0, 0, self.width, self.height)
 
-    def read(self) -> tuple[np.ndarray, np.ndarray]:
-        """(RGB, window depth in [0, 1]), rows top to bottom."""
+    def read(self, colour: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+        """(RGB or None unless ``colour``, window depth in [0, 1]), rows top to bottom."""
         gl = self.gl
         gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, self.fbo)
         gl.glPixelStorei(gl.GL_PACK_ALIGNMENT, 1)
-        gl.glReadPixels(0, 0, self.width, self.height, gl.GL_RGB, gl.GL_UNSIGNED_BYTE,
-                        self._rgb.ctypes.data_as(ctypes.POINTER(gl.GLubyte)))
+        if colour:
+            gl.glReadPixels(0, 0, self.width, self.height, gl.GL_RGB, gl.GL_UNSIGNED_BYTE,
+                            self._rgb.ctypes.data_as(ctypes.POINTER(gl.GLubyte)))
         gl.glReadPixels(0, 0, self.width, self.height, gl.GL_DEPTH_COMPONENT, gl.GL_FLOAT,
                         self._depth.ctypes.data_as(ctypes.POINTER(gl.GLfloat)))
         gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, 0)
-        return self._rgb[::-1].copy(), self._depth[::-1].astype(np.float64)
+        return (self._rgb[::-1].copy() if colour else None,
+                self._depth[::-1].astype(np.float64))
 

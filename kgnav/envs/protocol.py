@@ -3,7 +3,10 @@
 An environment is a gymnasium-style object for one scene (a house) holding several episodes:
 
 * ``env_spec``: an :class:`~kgnav.envs.spec.EnvSpec` (camera, actions, class vocabulary);
-* ``reset(seed=..., options={"episode": i}) -> (obs, info)`` starts episode ``i``;
+* ``reset(seed=..., options={"episode": i}) -> (obs, info)`` starts episode ``i``; with
+  ``options["semantic"] = False`` the episode's observations need not carry ``semantic``
+  (the benchmark asks so when nothing in the run reads it; an environment for which labels
+  cost time skips them, one for which they are free may ignore the option);
 * ``step(action) -> (obs, reward, terminated, truncated, info)``; ``terminated`` after
   ``stop``, ``truncated`` at the step limit.
 
@@ -19,8 +22,9 @@ key           dtype, shape   meaning
                              forward, y left, metres; θ radians counter-clockwise; (0, 0, 0) at
                              reset
 ``objectgoal`` int           the goal class, 1-based id into ``env_spec.classes``
-``semantic``  int (H,W,2)    only if ``env_spec.semantic``: channel 0 class id (0 none), channel
-                             1 instance id (0 none); ground truth for the noise segmenters
+``semantic``  int (H,W,2)    only if ``env_spec.semantic`` (and the episode did not decline it):
+                             channel 0 class id (0 none), channel 1 instance id (0 none); ground
+                             truth for the noise segmenters and some metrics
 ============= ============== =====================================================================
 
 At an episode's end ``info["success"]`` (bool) is required. Everything else is ground truth
@@ -110,16 +114,19 @@ def check_env(env, name: str = "") -> EnvSpec:
     return spec
 
 
-def check_observation(obs, spec: EnvSpec) -> None:
+def check_observation(obs, spec: EnvSpec, semantic: bool | None = None) -> None:
     """Raise a one-line :class:`EnvProtocolError` if ``obs`` breaks the protocol of ``spec``:
-    a missing key, a wrong dtype or shape, a goal outside the vocabulary."""
+    a missing key, a wrong dtype or shape, a goal outside the vocabulary. ``semantic``: whether
+    the episode asked for the semantic frame (None: ``spec.semantic``); one that did not ask
+    may lack it, and one it carries anyway is still checked."""
 
     def bad(msg: str) -> EnvProtocolError:
         return EnvProtocolError(f"environment {spec.name!r}: {msg}")
 
     if not isinstance(obs, dict):
         raise bad(f"observation must be a dict, got {type(obs).__name__}")
-    keys = OBSERVATION_KEYS + (("semantic",) if spec.semantic else ())
+    asked = spec.semantic if semantic is None else spec.semantic and semantic
+    keys = OBSERVATION_KEYS + (("semantic",) if asked else ())
     missing = [k for k in keys if k not in obs]
     if missing:
         raise bad(f"observation has no {', '.join(map(repr, missing))} "
@@ -136,7 +143,7 @@ def check_observation(obs, spec: EnvSpec) -> None:
     k = int(np.asarray(goal).reshape(-1)[0])
     if not 1 <= k <= len(spec.classes):
         raise bad(f"observation 'objectgoal' {k} is no class id (1..{len(spec.classes)})")
-    if spec.semantic:
+    if spec.semantic and "semantic" in obs:
         sem = obs["semantic"]
         if not isinstance(sem, np.ndarray) or sem.shape != (H, W, 2) or sem.dtype.kind not in "iu":
             raise bad(f"observation 'semantic' must be an integer ({H}, {W}, 2) array, "

@@ -34,37 +34,47 @@ Pose = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class SceneViews:
-    """The views of one scene: ``name``, poses (N, 3), RGB (N, H, W, 3), depth (N, H, W)."""
+    """The views of one scene: ``name``, poses (N, 3), RGB (N, H, W, 3), depth (N, H, W);
+    ``semantic`` (N, H, W, 2) uint16 (class, instance ids) when the walk asked for it."""
 
     name: str
     poses: np.ndarray
     rgb: np.ndarray
     depth: np.ndarray
+    semantic: np.ndarray | None = None
 
 
 def walk_scene(env, name: str, steps: int, episodes: int, seed: int,
-               scene: int = 0) -> SceneViews:
+               scene: int = 0, semantic: bool = False) -> SceneViews:
     """``steps`` views of one environment (scene) from seeded random walks over its first
-    ``episodes`` episodes (only the first without an ``episode_start`` hook)."""
+    ``episodes`` episodes (only the first without an ``episode_start`` hook). ``semantic``:
+    keep the environment's semantic frames too (its ground truth, for training a segmenter);
+    otherwise the walk tells the environment it may skip them. The walk is the same either
+    way."""
     spec = check_env(env, name)
+    if semantic and not spec.semantic:
+        raise KgnavError(f"environment {spec.name!r} has no semantic channel (EnvSpec."
+                         f"semantic): its frames carry no labels to train a segmenter on")
     act = spec.actions
     start_of = getattr(env, "episode_start", None)
     episodes = max(1, episodes if start_of is not None else 1)
     per = [steps // episodes + (k < steps % episodes) for k in range(episodes)]
-    poses, rgbs, depths = [], [], []
+    poses, rgbs, depths, sems = [], [], [], []
     forward, left, right = (act.index(a) for a in ("move_forward", "turn_left", "turn_right"))
     for ep, n in enumerate(per):
         s = episode_seed(seed, scene, ep)
         rng = np.random.default_rng(s)
-        obs, _ = env.reset(seed=s, options={"episode": ep})
+        obs, _ = env.reset(seed=s, options={"episode": ep, "semantic": semantic})
         start = tuple(start_of(ep)) if start_of is not None else (0.0, 0.0, 0.0)
         last, turns = None, 0
         for k in range(n):
-            check_observation(obs, spec)
+            check_observation(obs, spec, semantic)
             p = se2.compose(start, tuple(float(v) for v in obs["pose"]))
             poses.append(p)
             rgbs.append(obs["rgb"])
             depths.append(obs["depth"].astype(np.float16))
+            if semantic:
+                sems.append(_labels16(obs["semantic"], spec.name))
             if k == n - 1:
                 break
             blocked = last is not None and math.dist(last[:2], p[:2]) < act.bump_distance
@@ -80,7 +90,15 @@ def walk_scene(env, name: str, steps: int, episodes: int, seed: int,
             obs, _r, term, trunc, _info = env.step(a)
             if term or trunc:
                 break
-    return SceneViews(name, np.array(poses, float), np.stack(rgbs), np.stack(depths))
+    return SceneViews(name, np.array(poses, float), np.stack(rgbs), np.stack(depths),
+                      np.stack(sems) if semantic else None)
+
+
+def _labels16(sem: np.ndarray, env: str) -> np.ndarray:
+    """A semantic frame as uint16 (half the memory of int32 over thousands of views)."""
+    if sem.size and int(sem.max()) > np.iinfo(np.uint16).max:
+        raise KgnavError(f"environment {env!r}: semantic ids above 65535 cannot be kept")
+    return sem.astype(np.uint16)
 
 
 class EnvViewSampler:
@@ -103,14 +121,16 @@ class EnvViewSampler:
     @classmethod
     def from_suite(cls, suite: EnvSuite, scenes: Sequence[int], steps: int = 400,
                    episodes: int = 4, seed: int = 0,
-                   progress: Callable[[int, int], None] | None = None) -> EnvViewSampler:
-        """Walk ``steps`` views in each of ``scenes`` of an environment's suite."""
+                   progress: Callable[[int, int], None] | None = None,
+                   semantic: bool = False) -> EnvViewSampler:
+        """Walk ``steps`` views in each of ``scenes`` of an environment's suite (with their
+        semantic frames when ``semantic``)."""
         out = []
         for n, k in enumerate(scenes):
             env = suite.make(k, episodes)
             name = str(getattr(env, "scene_name", None) or f"{suite.name}-{k:02d}")
             out.append(walk_scene(env, name, steps, min(episodes, suite.episode_count(k)),
-                                  seed, k))
+                                  seed, k, semantic))
             if progress is not None:
                 progress((n + 1) * steps, len(scenes) * steps)
         return cls(out)

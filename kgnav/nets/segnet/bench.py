@@ -19,6 +19,11 @@ Definitions (those of ``docs/segmenter.md``, at the state creator's 20-pixel min
   no number of views corrects;
 * **time**: wall time of one segmenter call per frame (median, 90th percentile).
 
+Class ids index a vocabulary (``classes``, default kgnav's; another environment's when its
+frames are scored), and a segmenter labelling another vocabulary is mapped to it by name, its
+other classes dropped (as the agent maps it). The goal classes are kgnav's six ObjectNav
+classes, or every class of another environment (whose episodes may ask for any).
+
 >>> distance_band(1.0), distance_band(3.0), distance_band(4.9), size_band(50)
 ('0-2 m', '2-3.5 m', '3.5-5 m', '20-100 px')
 """
@@ -36,8 +41,6 @@ from kgnav.common.classes import OBJECT_CLASSES, OBJECTNAV_CLASSES
 
 DIST_BANDS = ((0.0, 2.0, "0-2 m"), (2.0, 3.5, "2-3.5 m"), (3.5, 1e9, "3.5-5 m"))
 SIZE_BANDS = ((0, 100, "20-100 px"), (100, 500, "100-500 px"), (500, 10**9, ">=500 px"))
-N_CLS = len(OBJECT_CLASSES) + 1
-_GOAL = {OBJECT_CLASSES.index(c) + 1 for c in OBJECTNAV_CLASSES}
 
 
 def distance_band(d: float) -> str:
@@ -85,12 +88,29 @@ def render_frames(split: str, n: int, seed: int = 1, object_share: float = 0.5,
     return Frames(np.stack(rgb), np.stack(depth), np.stack(sem), scenes, np.array(poses))
 
 
-class Scorer:
-    """Accumulates the benchmark's counts over frames for one segmenter."""
+def walked_frames(views, n: int, seed: int = 1, object_share: float = 0.5) -> Frames:
+    """``n`` frames of another environment's walked views
+    (:class:`~kgnav.nets.segnet.env_data.EnvLabelledViews`), the scenes in turn after a
+    shuffle: ``object_share`` of them showing an object (class-balanced), the rest any; seeded.
+    """
+    rgb, depth, sem, houses, poses = views.frames(np.random.default_rng([seed, 0x5E6B]), n,
+                                                  object_share=object_share)
+    return Frames(rgb, depth, sem, [views.views[h].name for h in houses], poses)
 
-    def __init__(self, min_pixels: int = 20):
+
+class Scorer:
+    """Accumulates the benchmark's counts over frames for one segmenter; class ids index
+    ``classes``, and ``goal_classes`` (default: all of them unless ``classes`` are kgnav's,
+    whose goals are the six ObjectNav classes) are the goal classes' figures."""
+
+    def __init__(self, min_pixels: int = 20, classes: Sequence[str] = OBJECT_CLASSES,
+                 goal_classes: Sequence[str] | None = None):
         self.min_pixels = min_pixels
-        self.conf = np.zeros((N_CLS, N_CLS), np.int64)  # pixels: [true, predicted]
+        self.classes = tuple(classes)
+        goals = goal_classes if goal_classes is not None else default_goals(self.classes)
+        self.goal = {self.classes.index(c) + 1 for c in goals if c in self.classes}
+        self.n_cls = n = len(self.classes) + 1
+        self.conf = np.zeros((n, n), np.int64)  # pixels: [true, predicted]
         self.gt = Counter()  # (band kind, band) -> instances
         self.hit = Counter()
         self.seg = Counter()  # (band kind, band) -> segments
@@ -107,11 +127,11 @@ class Scorer:
         the house, for the persistence of errors across views)."""
         self.frames += 1
         self.seconds.append(seconds)
+        N = self.n_cls
         gcls = semantic[..., 0].ravel().astype(np.int64)
         ginst = semantic[..., 1].ravel().astype(np.int64)
         pcls = out.classes.ravel().astype(np.int64)
-        self.conf += np.bincount(gcls * N_CLS + pcls, minlength=N_CLS * N_CLS).reshape(
-            N_CLS, N_CLS)
+        self.conf += np.bincount(gcls * N + pcls, minlength=N * N).reshape(N, N)
         d = depth.ravel()
         inst_cls = {}
         gsize = np.bincount(ginst)
@@ -123,7 +143,7 @@ class Scorer:
             if s.pixels < self.min_pixels:
                 continue
             m = pinst == s.id
-            c = OBJECT_CLASSES.index(s.cls) + 1
+            c = self.classes.index(s.cls) + 1
             under = ginst[m]
             ids, cnt = np.unique(under, return_counts=True)
             own = sum(int(n) for i, n in zip(ids, cnt, strict=True)
@@ -138,17 +158,17 @@ class Scorer:
                     hit.add(i)
             if not correct:
                 self.fp["all"] += 1
-                self.fp["goal"] += c in _GOAL
+                self.fp["goal"] += c in self.goal
                 main = int(ids[np.argmax(cnt)])
                 if main == 0:
                     self.fp["background"] += 1
                 else:
-                    self.pairs[(OBJECT_CLASSES[inst_cls.get(main, int(
+                    self.pairs[(self.classes[inst_cls.get(main, int(
                         gcls[np.argmax(ginst == main)])) - 1], s.cls)] += 1
         for i, c in inst_cls.items():
             m = ginst == i
             if gsize[i] >= 100:
-                lab = np.bincount(pcls[m], minlength=N_CLS)
+                lab = np.bincount(pcls[m], minlength=N)
                 lab[0] = 0
                 if lab.sum() >= 0.3 * gsize[i]:
                     self.views.setdefault((scene, i), []).append(int(np.argmax(lab)) != c)
@@ -160,7 +180,7 @@ class Scorer:
                 self.hit[key] += i in hit
             self.gt[("all", "all")] += 1
             self.hit[("all", "all")] += i in hit
-            if c in _GOAL:
+            if c in self.goal:
                 self.gt[("goal", "goal")] += 1
                 self.hit[("goal", "goal")] += i in hit
 
@@ -169,9 +189,10 @@ class Scorer:
         inter = np.diag(self.conf).astype(float)
         union = self.conf.sum(0) + self.conf.sum(1) - np.diag(self.conf)
         present = self.conf.sum(1) > 0
-        iou = {OBJECT_CLASSES[c - 1]: round(inter[c] / union[c], 4)
-               for c in range(1, N_CLS) if present[c]}
-        goal_iou = [iou[c] for c in OBJECTNAV_CLASSES if c in iou]
+        iou = {self.classes[c - 1]: round(inter[c] / union[c], 4)
+               for c in range(1, self.n_cls) if present[c]}
+        goal_iou = [iou[self.classes[c - 1]] for c in sorted(self.goal)
+                    if self.classes[c - 1] in iou]
 
         def ratio(a: Counter, b: Counter, kind: str) -> dict:
             return {k[1]: {"value": round(a[k] / b[k], 4) if b[k] else None, "n": b[k]}
@@ -208,7 +229,7 @@ class Scorer:
                 "mislabelled_in_all_views": round(
                     sum(all(v) for v in multi) / max(len(multi), 1), 4)},
             "confusion_pairs": [[t, p, n] for (t, p), n in self.pairs.most_common(15)],
-            "pixel_confusions": pixel_confusions(self.conf),
+            "pixel_confusions": pixel_confusions(self.conf, classes=self.classes),
             "ms_per_frame": {"median": round(float(np.median(secs)), 3) if len(secs) else None,
                              "p90": round(float(np.percentile(secs, 90)), 3) if len(secs)
                              else None},
@@ -220,35 +241,50 @@ def _band_order(key: tuple[str, str]) -> int:
     return names.index(key[1]) if key[1] in names else -1
 
 
-def pixel_confusions(conf: np.ndarray, top: int = 10) -> list[list]:
+def default_goals(classes: Sequence[str]) -> tuple[str, ...]:
+    """The goal classes of a vocabulary: kgnav's six ObjectNav classes for kgnav's, every class
+    of another (an environment declares no goal subset; MiniWorld's episodes ask for any)."""
+    return OBJECTNAV_CLASSES if tuple(classes) == OBJECT_CLASSES else tuple(classes)
+
+
+def pixel_confusions(conf: np.ndarray, top: int = 10,
+                     classes: Sequence[str] = OBJECT_CLASSES) -> list[list]:
     """The largest off-diagonal object→object pixel confusions: [true, predicted, share of the
     true class's pixels]."""
     share = conf / np.maximum(conf.sum(1, keepdims=True), 1)
     out = []
-    for t in range(1, N_CLS):
-        for p in range(1, N_CLS):
+    n = len(classes) + 1
+    for t in range(1, n):
+        for p in range(1, n):
             if t != p and conf[t, p]:
-                out.append([OBJECT_CLASSES[t - 1], OBJECT_CLASSES[p - 1],
-                            round(float(share[t, p]), 4)])
+                out.append([classes[t - 1], classes[p - 1], round(float(share[t, p]), 4)])
     return sorted(out, key=lambda r: -r[2])[:top]
 
 
 def score(segmenter, frames: Frames, min_pixels: int = 20,
-          progress: Callable[[int], None] | None = None) -> Scorer:
-    """Run ``segmenter`` on every frame (reset per frame: seed = frame index, scene = house)."""
-    sc = Scorer(min_pixels)
+          progress: Callable[[int], None] | None = None,
+          classes: Sequence[str] = OBJECT_CLASSES) -> Scorer:
+    """Run ``segmenter`` on every frame (reset per frame: seed = frame index, scene = house);
+    the frames' class ids index ``classes``, to which the segmenter's output is mapped."""
+    from kgnav.agent.loop import _relabel, _vocabulary_map
+
+    sc = Scorer(min_pixels, classes)
+    table = _vocabulary_map(segmenter, sc.classes)  # one-line error: no class in common
     for k in range(len(frames)):
         segmenter.reset(k, frames.scenes[k])
         rgb, depth, sem = frames.rgb[k], frames.depth[k], frames.semantic[k]
         t = time.perf_counter()
         out = segmenter(rgb, depth, sem)
+        if table is not None:
+            out = _relabel(out, table, sc.classes)
         sc.add(out, depth, sem, time.perf_counter() - t, frames.scenes[k])
         if progress is not None:
             progress(k + 1)
     return sc
 
 
-def plot_confusion(confs: dict[str, np.ndarray], path, title: str = "") -> None:
+def plot_confusion(confs: dict[str, np.ndarray], path, title: str = "",
+                   classes: Sequence[str] = OBJECT_CLASSES) -> None:
     """Row-normalised pixel confusion matrices side by side (one panel per segmenter)."""
     import matplotlib
 
@@ -257,13 +293,14 @@ def plot_confusion(confs: dict[str, np.ndarray], path, title: str = "") -> None:
 
     from kgnav.common.atomic import atomic_open
 
-    names = ["background", *OBJECT_CLASSES]
+    names = ["background", *classes]
+    n = len(names)
     fig, axes = plt.subplots(1, len(confs), figsize=(7.5 * len(confs), 7), squeeze=False)
     for ax, (label, conf) in zip(axes[0], confs.items(), strict=True):
         share = conf / np.maximum(conf.sum(1, keepdims=True), 1)
         im = ax.imshow(share, cmap="viridis", vmin=0, vmax=1)
-        ax.set_xticks(range(N_CLS), names, rotation=90, fontsize=7)
-        ax.set_yticks(range(N_CLS), names, fontsize=7)
+        ax.set_xticks(range(n), names, rotation=90, fontsize=7)
+        ax.set_yticks(range(n), names, fontsize=7)
         ax.set_xlabel("predicted")
         ax.set_ylabel("true")
         ax.set_title(label)
@@ -277,12 +314,14 @@ def plot_confusion(confs: dict[str, np.ndarray], path, title: str = "") -> None:
 
 
 def bench(segmenters: Sequence[tuple[str, object]], frames: Frames, min_pixels: int = 20,
-          progress: Callable[[str, int], None] | None = None) -> dict[str, Scorer]:
-    """Score each ``(label, segmenter)`` on the same frames."""
+          progress: Callable[[str, int], None] | None = None,
+          classes: Sequence[str] = OBJECT_CLASSES) -> dict[str, Scorer]:
+    """Score each ``(label, segmenter)`` on the same frames (class ids into ``classes``)."""
     out = {}
     for label, seg in segmenters:
         out[label] = score(seg, frames, min_pixels,
-                           None if progress is None else (lambda k, lb=label: progress(lb, k)))
+                           None if progress is None else (lambda k, lb=label: progress(lb, k)),
+                           classes)
     return out
 
 
@@ -300,7 +339,7 @@ def calibrate_min_score(segmenter, frames: Frames, grid: Sequence[float] = SCORE
     maps = [segmenter.probabilities(frames.rgb[k], frames.depth[k]) for k in range(len(frames))]
     curve = []
     for t in grid:
-        sc = Scorer(min_pixels)
+        sc = Scorer(min_pixels, segmenter.class_names)
         for k, (cls, conf) in enumerate(maps):
             depth = frames.depth[k]
             out = segmentation_from_classes(cls, conf, depth.shape[::-1], min_pixels,

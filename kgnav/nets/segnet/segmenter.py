@@ -67,6 +67,7 @@ class LearnedSegmenter:
     """
 
     name = NAME
+    needs_semantic = False  # RGB-D only: the environment need not render labels
 
     def __init__(self, weights: str | os.PathLike[str] | SegmenterWeights | None = None,
                  seed: int = 0, device: str = "cpu", min_pixels: int = 20,
@@ -142,6 +143,8 @@ class ClassMapSegmenter:
     >>> seg(np.zeros((120, 160, 3), np.uint8), depth).segments
     [Segment(id=1, cls='chair', bbox=(60, 40, 100, 80), pixels=1600, score=1.0)]
     """
+
+    needs_semantic = False
 
     def __init__(self, model, name: str = "custom", class_names=OBJECT_CLASSES,
                  min_pixels: int = 20):

@@ -1,4 +1,5 @@
-"""Supervised training of the segmenter on frames rendered from the ``train`` houses.
+"""Supervised training of the segmenter on frames rendered from the ``train`` houses, or walked
+through any registered environment (``env``; :mod:`kgnav.nets.segnet.env_data`).
 
 Each step renders a fresh batch (:class:`~kgnav.nets.segnet.data.LabelledViews`: class-balanced
 views aimed at objects plus random ones), downscales it to the network's input size, augments it
@@ -8,7 +9,8 @@ views aimed at objects plus random ones), downscales it to the network's input s
 Reproducible: the batch of step ``k`` comes from ``default_rng([seed, k])`` and the weights are
 initialised from ``seed``, so a run is a pure function of its :class:`SegTrainConfig` (on CPU, for
 a given thread count); a run resumed from a checkpoint equals an uninterrupted one
-(:class:`~kgnav.nets.training.SeededTrainer`).
+(:class:`~kgnav.nets.training.SeededTrainer`). Another environment's frames are walked again
+from the same seed when a run resumes, so they are the same frames.
 """
 
 from __future__ import annotations
@@ -20,10 +22,11 @@ import torch
 import torch.nn.functional as F
 
 from kgnav.common.classes import OBJECT_CLASSES, OBJECTNAV_CLASSES
+from kgnav.errors import KgnavError
 from kgnav.nets.encoder.net import downscale, to_tensor
 from kgnav.nets.segnet.data import LabelledViews, augment, labels_at
+from kgnav.nets.segnet.env_data import EnvLabelledViews
 from kgnav.nets.segnet.net import (
-    N_OUT,
     SegArch,
     SegNet,
     depth_tensor,
@@ -34,6 +37,7 @@ from kgnav.nets.segnet.weights import SegmenterWeights, SegmenterWeightsError
 from kgnav.nets.training import SeededTrainer, TrainingConfig
 
 CHECKPOINT_FORMAT = "kgnav-segmenter-checkpoint"
+KGNAV = "kgnav"  # kgnav's own simulator: labelled views rendered from any pose
 
 
 @dataclass(frozen=True)
@@ -51,28 +55,41 @@ class SegTrainConfig(TrainingConfig):
     stem: int = 16
     channels: tuple[int, ...] = (24, 32, 64)
     depth_channels: tuple[int, ...] = (16, 32, 64)
+    env: str = KGNAV  # whose frames (kgnav.envs); recorded as the weights' domain
+    classes: tuple[str, ...] = OBJECT_CLASSES  # the vocabulary it labels: the environment's
+    walk_steps: int = 0  # views walked per scene of another environment (kgnav: none)
 
     def __post_init__(self):
         if self.steps < 0 or self.batch < 2 or self.n_houses < 1:
             raise ValueError("steps must be >= 0, batch >= 2 and n_houses >= 1")
+        if not self.classes or len(set(self.classes)) != len(self.classes):
+            raise ValueError("classes must be distinct names, at least one")
+        if self.env != KGNAV and self.walk_steps < 1:
+            raise ValueError("another environment's frames are walked: walk_steps must be >= 1")
 
     @property
     def arch(self) -> SegArch:
         return SegArch(input_size=tuple(self.input_size), stem=self.stem,
-                       channels=tuple(self.channels), depth_channels=tuple(self.depth_channels))
+                       channels=tuple(self.channels), depth_channels=tuple(self.depth_channels),
+                       n_classes=len(self.classes) + 1)
 
     def class_weights(self) -> torch.Tensor:
-        w = torch.ones(N_OUT)
+        """Background weighed down; kgnav's six goal classes up. Another environment declares
+        no goal classes, so its object classes weigh 1."""
+        w = torch.ones(len(self.classes) + 1)
         w[0] = self.background_weight
-        for c in OBJECTNAV_CLASSES:
-            w[OBJECT_CLASSES.index(c) + 1] = self.goal_weight
+        if self.env == KGNAV:
+            for c in OBJECTNAV_CLASSES:
+                if c in self.classes:
+                    w[self.classes.index(c) + 1] = self.goal_weight
         return w
 
 
 class SegTrainer(SeededTrainer):
     """Trains a :class:`SegNet` per a :class:`SegTrainConfig`; ``fit`` returns ``self``.
 
-    ``sampler`` defaults to the houses of ``config.split``; pass one to train elsewhere.
+    ``sampler`` defaults to the houses of ``config.split`` (of ``config.env``: walked there,
+    labels from its semantic frames); pass one to train elsewhere.
     """
 
     checkpoint_format = CHECKPOINT_FORMAT
@@ -94,10 +111,17 @@ class SegTrainer(SeededTrainer):
     @property
     def sampler(self) -> LabelledViews:
         if self._sampler is None:
-            from kgnav.sim.episodes import load_scene_of
-
             c = self.config
-            self._sampler = LabelledViews([load_scene_of(c.split, k) for k in range(c.n_houses)])
+            if c.env == KGNAV:
+                from kgnav.sim.episodes import load_scene_of
+
+                self._sampler = LabelledViews([load_scene_of(c.split, k)
+                                               for k in range(c.n_houses)])
+            else:
+                self._sampler = env_views(c.env, c.split, c.n_houses, c.walk_steps, c.seed)
+                if self._sampler.classes != tuple(c.classes):
+                    raise KgnavError(f"environment {c.env!r} labels {self._sampler.classes}, "
+                                     f"not the run's classes {tuple(c.classes)}")
         return self._sampler
 
     def batch(self, step: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -127,5 +151,22 @@ class SegTrainer(SeededTrainer):
         """The inference weights (BatchNorm folded) with their metadata."""
         self.net.eval()
         params = {k: v.cpu().numpy() for k, v in fold_batchnorm(self.net).items()}
-        meta = {"classes": list(OBJECT_CLASSES), "train": self.train_meta(curve_every=100)}
-        return SegmenterWeights(self.config.arch, params, meta)
+        c = self.config
+        meta = {"classes": list(c.classes), "train": self.train_meta(curve_every=100),
+                "domain": {"env": c.env, "train_split": c.split, "scenes": c.n_houses,
+                           "walk_steps": c.walk_steps or None}}
+        return SegmenterWeights(c.arch, params, meta)
+
+
+def env_views(env: str, split: str, scenes: int, walk_steps: int, seed: int,
+              progress=None) -> EnvLabelledViews:
+    """The labelled views of the first ``scenes`` scenes of an environment's split, walked
+    (``walk_steps`` a scene) from ``seed``."""
+    from kgnav.envs import EnvOptions, make_env
+
+    suite = make_env(env, EnvOptions(split=split))
+    if scenes > len(suite):
+        raise KgnavError(f"environment {env!r} split {split!r} has {len(suite)} scenes, not "
+                         f"{scenes}")
+    return EnvLabelledViews.from_suite(suite, range(scenes), walk_steps, seed,
+                                       progress=progress)
