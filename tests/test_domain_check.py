@@ -166,3 +166,36 @@ def test_bad_segmenter_weights_options_exit_in_one_line(cli, tmp_path, grid_segm
             else a for a in args]
     got, _out, err = cli("eval", *args, "--out", tmp_path / "ev", "--quiet")
     assert got == code and expected in _one_line(err)
+
+
+# ---------------------------------------------------------------------- an environment's own
+def test_an_environment_names_its_own_weights_and_a_run_uses_them(tmp_path, grid_segmenter,
+                                                                    monkeypatch):
+    from dataclasses import replace
+
+    from kgnav.benchmark.runner import with_env_weights
+    from kgnav.envs import env_weights
+
+    assert env_weights(GRID) == {} and env_weights("kgnav") == {}
+    cfg = EvalConfig(env=GRID, variants=("ans",), segmenter="learned", scenes=1, episodes=1,
+                     extractor="opencv-gist")
+    with pytest.raises(DomainMismatchError):  # kgnav's shipped segmenter on the grid rooms
+        run_eval(cfg, None, progress=False)
+    monkeypatch.setattr(GridSuite, "default_weights", {"segmenter": str(grid_segmenter)},
+                        raising=False)
+    assert env_weights(GRID) == {"segmenter": grid_segmenter}
+    assert with_env_weights(cfg).segmenter_weights == str(grid_segmenter)
+    mine = str(tmp_path / "mine.npz")
+    assert with_env_weights(replace(cfg, segmenter_weights=mine)).segmenter_weights == mine
+    assert with_env_weights(replace(cfg, segmenter="clean")).segmenter_weights is None
+    _, summary = run_eval(cfg, None, progress=False)  # its own weights pass the check
+    assert "ans" in summary
+
+
+def test_miniworld_ships_and_names_a_segmenter_trained_on_its_frames():
+    from kgnav.envs import env_weights  # the adapter imports MiniWorld only to render
+
+    path = env_weights("miniworld")["segmenter"]
+    w = segmenter_weights.load_weights(path)
+    assert weights_env(w.meta) == "miniworld" and path.parent.name == "weights"
+    check_domain("segmenter", path, w.meta, "miniworld")

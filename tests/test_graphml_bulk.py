@@ -187,3 +187,21 @@ def test_both_base64_encoders_write_the_same():
         raw = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
         assert gs.b64encode(raw) == base64.b64encode(raw).decode("ascii")
         assert binascii.b2a_base64(raw, newline=False).decode("ascii") == gs.b64encode(raw)
+
+
+def test_repeated_numbers_are_held_once_and_signed_zeros_stay_apart(tmp_path):
+    import math
+
+    m = _walk()
+    sees = [(u, v) for u, v, k in m.graph.edges(keys=True) if k == "sees"]
+    for u, v in sees:  # every sighting scored 1
+        m.graph.edges[u, v, "sees"]["score"] = 1.0
+    path = tmp_path / "m.graphml"
+    m.save(path)
+    reader = gr._Canonical(str(path), 1 << 30)
+    back = AbstractModel.from_graph(reader.read())
+    assert reader.stats["bulk"] == _body_lines(path.read_bytes()) + 2 and back == m
+    got = [back.graph.edges[u, v, "sees"]["score"] for u, v in sees]
+    assert len({id(x) for x in got}) < len(got) / 10  # shared, not one object per sighting
+    texts = [b"-0.0", b"0.0", b"-0.0", b"2.5"]
+    assert [math.copysign(1, x) for x in gr._shared(float, texts)] == [-1, 1, -1, 1]

@@ -173,3 +173,26 @@ def test_an_external_dtd_is_refused_before_it_is_opened(tmp_path, doctype, encod
     models, problems = ModelStore(store).load_all()
     assert models == {} and "document type" in problems[0].reason
     assert time.perf_counter() - t < 3.0
+
+
+def test_graph_attributes_after_the_nodes_are_read_ahead_not_buffered(tmp_path, monkeypatch):
+    text = (DATA / "rewritten_by_networkx.graphml").read_text()
+    held = []
+    real = gr._XmlReader.end_graph_data
+    monkeypatch.setattr(gr._XmlReader, "end_graph_data",
+                        lambda self: (held.append(self.pending), real(self))[1])
+    assert AbstractModel.load(DATA / "rewritten_by_networkx.graphml") == AbstractModel.load(
+        DATA / "valid.graphml")
+    assert held == [None]  # nothing waited for the graph's attributes
+    # a graph attribute given twice after the nodes: the buffered reading reports it, as before
+    close = text.rindex("</graph>")
+    last = text.rindex("<data", 0, close)
+    twice = text[:close] + text[last:close] + text[close:]
+    (tmp_path / "twice.graphml").write_text(twice)
+    ahead = []
+    real_ahead = gr._XmlReader.read_ahead
+    monkeypatch.setattr(gr._XmlReader, "read_ahead",
+                        lambda self: (ahead.append(real_ahead(self)), ahead[-1])[1])
+    with pytest.raises(ModelFileError, match="given twice"):
+        AbstractModel.load(tmp_path / "twice.graphml")
+    assert ahead == [None]

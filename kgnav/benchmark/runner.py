@@ -60,6 +60,7 @@ from kgnav.envs import (
     NavEnv,
     check_env,
     check_observation,
+    env_weights,
     find_env,
     make_env,
 )
@@ -265,6 +266,18 @@ def _learned_segmenter(name: str, seed: int, weights: str):
 
         _CACHE[key] = load_weights(weights)
     return make_segmenter(name, seed, weights=_CACHE[key])
+
+
+def with_env_weights(cfg: EvalConfig) -> EvalConfig:
+    """``cfg`` with the weights ``cfg.env`` names as its own (:func:`kgnav.envs.env_weights`)
+    where the run gave none: a MiniWorld run's learned segmenter is MiniWorld's."""
+    own = env_weights(cfg.env)
+    if cfg.segmenter_weights is None and "segmenter" in own and (
+            cfg.segmenter in LEARNED_SEGMENTERS):
+        cfg = replace(cfg, segmenter_weights=str(own["segmenter"]))
+    if cfg.encoder_weights is None and "encoder" in own and cfg.extractor in ("auto", ENCODER):
+        cfg = replace(cfg, encoder_weights=str(own["encoder"]))
+    return cfg
 
 
 def check_domains(cfg: EvalConfig, extractor_name: str) -> None:
@@ -965,6 +978,7 @@ def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = Tr
     """Run every variant of ``cfg``; with ``out``, write ``episodes.jsonl`` (one line per
     episode, rounds in order), ``summary.json`` (per variant) and ``config.json``.
     Returns (records, summary)."""
+    cfg = with_env_weights(cfg)
     extractor_name = resolve_extractor(cfg.extractor, cfg.encoder_weights)
     check_domains(cfg, extractor_name)
     features = _extractor(extractor_name, cfg.encoder_weights).name  # weights' fingerprint

@@ -173,7 +173,8 @@ def _parse_segmenters(ctx, param, value: str) -> list[str]:
               callback=_parse_segmenters,
               help="Comma-separated segmenter names (learned, clean, default, heavy, ...).")
 @click.option("--weights", type=click.Path(dir_okay=False, path_type=Path),
-              help="Weight file for the learned segmenter [default: the shipped weights].")
+              help="Weight file for the learned segmenter [default: the ones --env names as its "
+                   "own, else the shipped weights].")
 @click.option("--seed", default=1, show_default=True, type=click.IntRange(min=0),
               help="Seed of the frames (and of the noise presets).")
 @click.option("--object-share", default=0.5, show_default=True,
@@ -209,6 +210,10 @@ def segmenter_bench(split: str, out_dir: Path, n_frames: int, segmenters: list[s
         raise click.BadParameter(f"{out_dir} is not a directory", param_hint="--out")
     # the segmenters first: a bad name is a usage error before any frame is rendered
     classes, truth = (OBJECT_CLASSES, {}) if kgnav_env else _env_truth(env_name, split)
+    if weights is None:
+        from kgnav.envs import env_weights
+
+        weights = env_weights(env_name).get("segmenter")
     segs = []
     for name in segmenters:
         params = {"weights": weights} if name in ("learned", "kgnav-segnet") and weights else {}

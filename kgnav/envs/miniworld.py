@@ -70,6 +70,10 @@ def camera_spec(width: int = 160, height: int = 120) -> CameraSpec:
 class MiniWorldHouses:
     """The houses of a split (``options.split``: :data:`SPLITS`)."""
 
+    #: The learned segmenter trained on MiniWorld's frames (``kgnav/weights/``; rebuilt by
+    #: ``kgnav train-segmenter --env miniworld --steps 6000 --out FILE``, docs/segmenter.md).
+    default_weights = {"segmenter": "segmenter-miniworld.npz"}
+
     def __init__(self, options: EnvOptions):
         if options.scenes_dir is not None:
             raise KgnavError("environment 'miniworld' generates its houses: it takes --split "

@@ -23,6 +23,7 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Protocol
 
 from kgnav.envs.protocol import NavEnv
@@ -91,6 +92,17 @@ def find_env(name: str) -> Callable[[EnvOptions], EnvSuite]:
             raise KgnavError(f"environment {name!r} is not a factory (callable)")
         ENVS[name] = factory
     return REGISTRY.get(name)
+
+
+def env_weights(name: str) -> dict[str, Path]:
+    """The learned weights environment ``name`` names as its own, by network (``segmenter``,
+    ``encoder``): its factory's ``default_weights`` mapping, file names relative to kgnav's
+    shipped weights (``kgnav/weights/``) or absolute paths. A run on that environment uses them
+    unless given others; an environment that names none gets kgnav's shipped weights."""
+    from kgnav.nets.weights import SHIPPED
+
+    named = getattr(find_env(name), "default_weights", None) or {}
+    return {net: Path(f) if Path(f).is_absolute() else SHIPPED / f for net, f in named.items()}
 
 
 def make_env(name: str = DEFAULT_ENV, options: EnvOptions | None = None) -> EnvSuite:
