@@ -13,6 +13,8 @@ from pathlib import Path
 import click
 
 OUT_FILE = click.Path(dir_okay=False, path_type=Path)
+#: Scenes of another environment's split walked unless ``--scenes`` says.
+ENV_SCENES = 12
 DEVICE = click.Choice(["auto", "cpu", "cuda"])
 
 
@@ -114,3 +116,38 @@ def finished(trainer) -> str:
     state = "done" if trainer.done else "stopped by --time-budget"
     return (f"{state} at step {trainer.step}/{trainer.config.steps} "
             f"({trainer.elapsed_s / 60:.1f} min of training")
+
+
+def env_suite(env_name: str, split: str, min_scenes: int = 1,
+              too_few: str = "has no scenes"):
+    """An environment's split (:func:`kgnav.envs.make_env`), or a usage error naming the
+    option: it does not load, or has fewer than ``min_scenes`` scenes (the error says
+    ``too_few``, ``{n}`` standing for the split's scenes)."""
+    from kgnav.envs import EnvOptions, make_env
+    from kgnav.errors import KgnavError
+
+    try:
+        suite = make_env(env_name, EnvOptions(split=split))
+    except KgnavError as exc:
+        raise click.BadParameter(str(exc), param_hint="--env/--split") from None
+    if len(suite) < min_scenes:
+        raise click.BadParameter(f"environment {env_name!r} split {split!r} "
+                                 + too_few.format(n=len(suite)), param_hint="--split")
+    return suite
+
+
+def walk_env(views, env_name: str, split: str, scenes: int | None, walk_steps: int, seed: int,
+             desc: str, quiet: bool, *, min_scenes: int = 1,
+             too_few: str = "has no scenes"):
+    """``views.from_suite`` over the first ``scenes`` scenes of an environment's split
+    (:func:`env_suite`), walked through its protocol with a progress bar (``views``: the
+    encoder's :class:`~kgnav.nets.encoder.env_views.EnvViewSampler` or the segmenter's
+    :class:`~kgnav.nets.segnet.env_data.EnvLabelledViews`)."""
+    from tqdm import tqdm
+
+    suite = env_suite(env_name, split, min_scenes, too_few)
+    n = min(scenes or ENV_SCENES, len(suite))
+    with tqdm(total=n * walk_steps, desc=desc, unit="view", disable=quiet, dynamic_ncols=True,
+              mininterval=1.0) as bar:
+        return views.from_suite(suite, range(n), walk_steps, seed,
+                                progress=lambda done, total: bar.update(done - bar.n))

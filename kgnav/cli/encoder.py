@@ -20,6 +20,7 @@ from kgnav.cli._training import (
     run_training,
     set_threads,
     training_options,
+    walk_env,
 )
 from kgnav.errors import KgnavError
 from kgnav.sim.episodes import SPLITS
@@ -58,25 +59,12 @@ def _kgnav_split(split: str, allowed: list[str], hint: str = "--split") -> str:
 
 def env_sampler(env_name: str, split: str, scenes: int | None, walk_steps: int, seed: int,
                 desc: str, quiet: bool):
-    """Views of ``scenes`` scenes of an environment's split, walked through its protocol
-    (:class:`~kgnav.nets.encoder.env_views.EnvViewSampler`); usage errors name the option."""
-    from tqdm import tqdm
-
-    from kgnav.envs import EnvOptions, make_env
+    """Views of an environment's split walked through its protocol
+    (:class:`~kgnav.nets.encoder.env_views.EnvViewSampler`), two scenes at least."""
     from kgnav.nets.encoder.env_views import EnvViewSampler
 
-    try:
-        suite = make_env(env_name, EnvOptions(split=split))
-    except KgnavError as exc:
-        raise click.BadParameter(str(exc), param_hint="--env/--split") from None
-    n = min(scenes or 12, len(suite))
-    if n < 2:
-        raise click.BadParameter(f"environment {env_name!r} split {split!r} has {len(suite)} "
-                                 "scene(s); calibration needs two", param_hint="--split")
-    with tqdm(total=n * walk_steps, desc=desc, unit="view", disable=quiet, dynamic_ncols=True,
-              mininterval=1.0) as bar:
-        return EnvViewSampler.from_suite(suite, range(n), walk_steps, seed=seed,
-                                         progress=lambda done, total: bar.update(done - bar.n))
+    return walk_env(EnvViewSampler, env_name, split, scenes, walk_steps, seed, desc, quiet,
+                    min_scenes=2, too_few="has {n} scene(s); calibration needs two")
 
 
 def domain(env_name: str, split: str) -> str:

@@ -12,44 +12,31 @@ import click
 
 from kgnav.agent.noise_segmenters import GROUND_TRUTH_SEGMENTERS
 from kgnav.cli._training import (
+    ENV_SCENES,
     OUT_FILE,
+    env_suite,
     finished,
     prepare,
     run_training,
     set_threads,
     training_options,
+    walk_env,
 )
 from kgnav.cli.encoder import KGNAV, domain, env_options
-from kgnav.errors import KgnavError
 from kgnav.nets.segnet.train import SegTrainConfig
 from kgnav.sim.episodes import SPLITS
 
 _D = SegTrainConfig()
 CALIBRATION_SEED = 3  # frames of the train houses for the score threshold (not training's)
-ENV_SCENES = 12  # scenes walked of another environment's split unless --scenes says
 
 
 def _walk(env_name: str, split: str, scenes: int | None, walk_steps: int, seed: int,
           desc: str, quiet: bool):
     """Labelled views of an environment's split walked through its protocol
-    (:class:`~kgnav.nets.segnet.env_data.EnvLabelledViews`); usage errors name the option."""
-    from tqdm import tqdm
-
-    from kgnav.envs import EnvOptions, make_env
+    (:class:`~kgnav.nets.segnet.env_data.EnvLabelledViews`)."""
     from kgnav.nets.segnet.env_data import EnvLabelledViews
 
-    try:
-        suite = make_env(env_name, EnvOptions(split=split))
-    except KgnavError as exc:
-        raise click.BadParameter(str(exc), param_hint="--env/--split") from None
-    n = min(scenes or ENV_SCENES, len(suite))
-    if n < 1:
-        raise click.BadParameter(f"environment {env_name!r} split {split!r} has no scenes",
-                                 param_hint="--split")
-    with tqdm(total=n * walk_steps, desc=desc, unit="view", disable=quiet, dynamic_ncols=True,
-              mininterval=1.0) as bar:
-        return EnvLabelledViews.from_suite(suite, range(n), walk_steps, seed,
-                                           progress=lambda done, total: bar.update(done - bar.n))
+    return walk_env(EnvLabelledViews, env_name, split, scenes, walk_steps, seed, desc, quiet)
 
 
 @click.command("train-segmenter")
@@ -269,16 +256,8 @@ def _env_truth(env_name: str, split: str) -> tuple[tuple[str, ...], dict]:
     """An environment's vocabulary, and what a noise preset needs of it: its camera and that
     vocabulary (no frame is rendered here)."""
     from kgnav.agent.camera import Camera
-    from kgnav.envs import EnvOptions, make_env
 
-    try:
-        suite = make_env(env_name, EnvOptions(split=split))
-    except KgnavError as exc:
-        raise click.BadParameter(str(exc), param_hint="--env/--split") from None
-    if not len(suite):
-        raise click.BadParameter(f"environment {env_name!r} split {split!r} has no scenes",
-                                 param_hint="--split")
-    spec = suite.make(0, 1).env_spec
+    spec = env_suite(env_name, split).make(0, 1).env_spec
     cam = Camera.from_spec(spec.camera)
     return spec.classes, {"hfov_deg": cam.hfov_deg, "min_depth": cam.min_depth,
                           "max_depth": cam.max_depth, "classes": spec.classes}
