@@ -985,6 +985,22 @@ def _refuse_doctype(path: str, head: bytes) -> None:
                                        "not allowed")
 
 
+def _pull_parser(tags: list[str]):
+    """lxml's pull parser for the "end" of ``tags``, safe on a hostile file: no entities, no
+    DTD, no network."""
+    return etree.XMLPullParser(
+        events=("end",),
+        tag=tags,
+        resolve_entities=False,
+        no_network=True,
+        load_dtd=False,
+        remove_comments=True,  # text around a comment reads as one value
+        remove_pis=True,
+        huge_tree=False,  # keeps libxml2's limits on depth and text size
+        collect_ids=False,
+    )
+
+
 class _XmlReader:
     """Any GraphML file, through lxml's pull parser, freeing elements as it goes."""
 
@@ -1024,17 +1040,7 @@ class _XmlReader:
 
     # -------------------------------------------------------------------- driver
     def read(self) -> nx.MultiDiGraph:
-        parser = etree.XMLPullParser(
-            events=("end",),
-            tag=[_T["key"], _T["graph"], _T["node"], _T["edge"]],
-            resolve_entities=False,
-            no_network=True,
-            load_dtd=False,
-            remove_comments=True,  # text around a comment reads as one value
-            remove_pis=True,
-            huge_tree=False,  # keeps libxml2's limits on depth and text size
-            collect_ids=False,
-        )
+        parser = _pull_parser([_T["key"], _T["graph"], _T["node"], _T["edge"]])
         handlers = {
             _T["key"]: self.key,
             _T["node"]: self.node,
@@ -1157,10 +1163,7 @@ class _XmlReader:
         when that pass meets anything odd (a value given twice or holding markup, bad XML):
         the nodes and edges then wait in :attr:`pending`, and the reading reports the error
         where it always did."""
-        parser = etree.XMLPullParser(
-            events=("end",), tag=[_T["node"], _T["edge"], _T["data"]],
-            resolve_entities=False, no_network=True, load_dtd=False, remove_comments=True,
-            remove_pis=True, huge_tree=False, collect_ids=False)
+        parser = _pull_parser([_T["node"], _T["edge"], _T["data"]])
         found: dict[str, str] = {}
         try:
             for chunk in _chunks(self.path, self.limit):
