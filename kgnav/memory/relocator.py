@@ -321,17 +321,19 @@ class Relocator:
 
         self._reset()
         if isinstance(models, ModelStore):
-            self.store_revision_ = models.revision()
-            n = models.state_count()
-            for b in models.feature_batches(self.problems_):
-                if b.retract:
-                    self.remove(b.model_id)
-                    continue
-                if self._table is None and n is not None:
-                    self._table = VectorTable(b.feature_dim, capacity=n)
-                self._extend(b.model_id, b.extractor, b.feature_dim, b.state_ids, b.features)
-                if progress is not None:
-                    progress(len(b.state_ids))
+            with models.reading():  # one open of a database for all three
+                self.store_revision_ = models.revision()
+                n = models.state_count()
+                for b in models.feature_batches(self.problems_):
+                    if b.retract:
+                        self.remove(b.model_id)
+                        continue
+                    if self._table is None and n is not None:
+                        self._table = VectorTable(b.feature_dim, capacity=n)
+                    self._extend(b.model_id, b.extractor, b.feature_dim, b.state_ids,
+                                 b.features)
+                    if progress is not None:
+                        progress(len(b.state_ids))
             if self._dead:
                 self._compact()
         else:
