@@ -59,4 +59,9 @@ def models(draw, model_id: str | None = None, min_states: int = 1, max_states: i
         )
     ):
         m.add_transition(ids[i], a, ids[j])
+    # loop closures (schema 4): recorded on some models, kept or rejected
+    m.add_loop_closures({"state": f"{m.model_id}/{ids[i]}", "episode": e, "kept": k}
+                        for i, e, k in draw(st.lists(st.tuples(st.integers(0, n - 1),
+                                                               st.integers(0, 2), st.booleans()),
+                                                     max_size=3)))
     return m

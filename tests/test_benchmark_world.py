@@ -206,7 +206,10 @@ def test_eval_noise_option(tmp_path, cli):
                          "--out", tmp_path / "n", "--quiet")
     assert code == 0, err
     cfg = json.loads((tmp_path / "n" / "config.json").read_text())
-    assert cfg["actuation_noise"] == 1.0 and cfg["odometry_noise"] == 0.01
+    assert cfg["noise"] == "actuation=1,odometry=0.01"
+    assert cfg["noise_model"]["name"] == "custom"
+    assert cfg["noise_model"]["actuation"]["forward_sigma"] == 0.025
+    assert cfg["noise_model"]["odometry"]["sigma_xy"] == 0.01
     code, out, err = cli("eval", "--noise", "wobble=3", "--out", tmp_path / "m")
     assert code == 2 and "actuation=K" in err
 

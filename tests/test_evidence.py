@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from kgnav import AbstractModel, Detection, merge, query
 from kgnav.common import se2
+from kgnav.memory.constants import SCHEMA_VERSION
 from kgnav.memory.evidence import (
     BeliefModel,
     Evidence,
@@ -231,13 +232,13 @@ def test_geometry_and_evidence_survive_save_and_load(tmp_path, m):
 def test_a_version_1_file_still_loads_and_saves_as_the_current_version(tmp_path):
     """A model written before range profiles and evidence (schema 1) loads with point-like
     objects, full-confidence views, no scan and no relocation threshold, and is written back
-    as the current version (3)."""
+    as the current version."""
     from pathlib import Path
 
     v1 = Path(__file__).parent / "data" / "graphml" / "valid.graphml"
     assert '<data key="g0">1</data>' in v1.read_text()
     m = AbstractModel.load(v1)
-    assert m.graph.graph["kgnav_schema"] == 3 and m.scan is None
+    assert m.graph.graph["kgnav_schema"] == SCHEMA_VERSION and m.scan is None
     assert m.relocation_threshold is None
     for o in m.objects():
         d = m.graph.nodes[o]
@@ -246,7 +247,8 @@ def test_a_version_1_file_still_loads_and_saves_as_the_current_version(tmp_path)
     assert {o: e.n_missed for o, e in object_evidence(m).items()} == {"o0": 0, "o1": 0}
     m.save(tmp_path / "v3.graphml")
     again = AbstractModel.load(tmp_path / "v3.graphml")
-    assert again == m and '<data key="g0">3</data>' in (tmp_path / "v3.graphml").read_text()
+    text = (tmp_path / "v3.graphml").read_text()
+    assert again == m and f'<data key="g0">{SCHEMA_VERSION}</data>' in text
 
 
 def test_occupancy_never_misplaces_edge_hits_and_survives_foreign_ranges():

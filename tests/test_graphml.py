@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 
 from kgnav import AbstractModel, Detection, ModelFileError, SchemaVersionError
 from kgnav.memory import graphml as gml
+from kgnav.memory.constants import SCHEMA_VERSION
 from kgnav.memory.graphml import write as gml_write
 from tests.strategies import models
 
@@ -47,12 +48,12 @@ def test_networkx_reads_the_file(tmp_path, tiny):
     g = nx.read_graphml(path, force_multigraph=True)
     assert set(g.nodes) == set(tiny.graph.nodes)
     assert set(g.edges(keys=True)) == set(tiny.graph.edges(keys=True))
-    assert g.graph["kgnav_schema"] == 3
+    assert g.graph["kgnav_schema"] == SCHEMA_VERSION
 
 
 def test_relocation_threshold_is_recorded_and_checked(tmp_path, tiny):
     """Schema 3 records the relocation threshold a model was built with; older files load
-    without one (unknown, not guessed) and save as version 3; a value outside (0, 2] is
+    without one (unknown, not guessed) and save as the current version; a value outside (0, 2] is
     refused by the API and in a file."""
     path = tmp_path / "t.graphml"
     assert tiny.relocation_threshold is None
@@ -70,13 +71,13 @@ def test_relocation_threshold_is_recorded_and_checked(tmp_path, tiny):
     with pytest.raises(ModelFileError, match="attribute 'relocation_threshold': 2.5 is outside"):
         AbstractModel.load(path)
     # a version-2 file: the attribute did not exist then
-    v2 = text.replace('<data key="g0">3</data>', '<data key="g0">2</data>')
+    v2 = text.replace(f'<data key="g0">{SCHEMA_VERSION}</data>', '<data key="g0">2</data>')
     path.write_text(v2)
     with pytest.raises(ModelFileError, match="'relocation_threshold' is not a graph attribute"):
         AbstractModel.load(path)
     path.write_text(v2.replace(f'<data key="{kid}">0.0123</data>', ""))
     old = AbstractModel.load(path)
-    assert old.relocation_threshold is None and old.graph.graph["kgnav_schema"] == 3
+    assert old.relocation_threshold is None and old.graph.graph["kgnav_schema"] == SCHEMA_VERSION
     with pytest.raises(ValueError, match=r"relocation_threshold must be a cosine distance"):
         AbstractModel(feature_dim=2, relocation_threshold=0.0)
     with pytest.raises(ValueError, match=r"relocation_threshold must be a cosine distance"):

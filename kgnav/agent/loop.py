@@ -42,6 +42,7 @@ from kgnav.errors import UnknownClassError
 from kgnav.memory.evidence import ScanTable, belief, object_evidence
 from kgnav.memory.merge import merge
 from kgnav.memory.model import AbstractModel
+from kgnav.memory.posegraph import bend
 
 STRATEGIES = ("hard", "soft")
 SOFT_SEARCHES = ("direct", "area")
@@ -402,7 +403,17 @@ class ObjectNavAgent:
         :meth:`Relocalizer.mergeable`)."""
         if self.relocalizer is None:
             return None
-        return self.relocalizer.mergeable(self.model_)
+        r = self.relocalizer.mergeable(self.model_)
+        if r is not None:
+            # drift corrected by the episode's loop closures (only with a drift model set)
+            poses = self.relocalizer.corrected_poses(self.model_, r.transform)
+            if poses:
+                bend(self.model_, poses)
+                mid = self.model_.model_id
+                self.model_.add_loop_closures(
+                    {"state": f"{mid}/{sid}", "episode": self.episode, "kept": kept}
+                    for sid, kept in self.relocalizer.closure_states(self.model_))
+        return r
 
     # ------------------------------------------------------------------ 3. reasoning
     @property

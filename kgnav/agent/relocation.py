@@ -33,6 +33,7 @@ import numpy as np
 
 from kgnav.common import se2
 from kgnav.memory.geometry import OccupancyGrid, occupancy_from_scans
+from kgnav.memory.posegraph import Anchor, Correction, DriftModel, correct
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,11 @@ class RelocationConfig:
     late_hypotheses: int = 2  # transforms judged per model (the most voted by feature matches)
     merge_objects: int = 3  # before merging, the episode's objects (seen twice) mapped near
     # stored ones must mostly find their class there, once at least this many can be checked
+    # the odometry's drift (kgnav.memory.posegraph.DriftModel): before merging, stretches of the
+    # episode verified on their own become loop closures that bend its poses onto the model
+    # (None: odometry trusted as exact, one rigid transform, as without noise)
+    drift: DriftModel | None = None
+    closure_window: int = 20  # profiles per loop-closure stretch
 
 
 @dataclass
@@ -186,6 +192,8 @@ class Relocalizer:
         self.matched: set[str] = set()  # models whose states the episode's views matched
         self._recent: deque = deque(maxlen=self.config.recent_scans)
         self._all: list = []  # every profile of the episode, for the check before merging
+        self._steps: list[int] = []  # ... and the step of each
+        self.correction: Correction | None = None  # the episode bent onto the merged model
         self._candidates: list[tuple[int, str, tuple]] = []
         self._failed: list[tuple[int, str, tuple]] = []  # recently refused hypotheses
         self._pairs: list[tuple] = []
@@ -201,6 +209,7 @@ class Relocalizer:
         if state.ranges is not None and scan is not None:
             self._recent.append((state.pose, np.asarray(state.ranges, np.float32), scan))
             self._all.append(self._recent[-1])
+            self._steps.append(int(step))
         if self.relocation is not None:
             if (self.config.bridge_interval > 0
                     and step - self._last_bridge >= self.config.bridge_interval):
@@ -453,6 +462,7 @@ class Relocalizer:
         :attr:`final` and counted in :attr:`decisions`."""
         c = self.config
         r = self.relocation
+        self.correction = None
         if r is not None and self.refuted(r, c.merge_support):
             r = None
         if not (c.merge_check and c.geometry):
@@ -463,12 +473,15 @@ class Relocalizer:
         if r is not None:
             v = self.final[r.model_id] = self._episode_verdict(r.model_id, r.transform, scans,
                                                                episode)
+            if not v.ok and c.drift is not None and v.reason in ("geometry", "conflict"):
+                v = self._bent_verdict(r.model_id, r.transform, v)
             if v.ok:
                 r.transform = v.transform  # aligned on the whole episode: the most precise
             else:
                 self.decisions[f"merge refused: {v.reason}"] += 1
                 refused[r.model_id] = [r.transform]
                 r = None
+                self.correction = None
         hyps: dict[str, list] = {mid: [b.transform] for mid, b in self.bridges.items()}
         if episode is not None and c.late_match:
             for mid, Ts in self._episode_hypotheses(episode, refused).items():
@@ -496,7 +509,112 @@ class Relocalizer:
                                        late=True)
             self.decisions["late match"] += 1
         self.bridges = found if r is not None else {}
+        if r is not None and c.drift is not None and self.correction is None:
+            self.correction = self.close_loops(r.model_id, r.transform)
         return r
+
+    def _bent_verdict(self, model_id: str, T, rigid: Verdict) -> Verdict:
+        """A drifting episode that no single transform lays on the model: judge it again with
+        its poses bent by its loop closures (:meth:`close_loops`). Kept, the correction is
+        :attr:`correction` and the verdict carries ``T`` (the bend already maps the chain)."""
+        fix = self.close_loops(model_id, T)
+        if fix is None:
+            return rigid
+        scans = [(q, r, scan) for q, (_, r, scan) in zip(fix.poses, self._all, strict=True)]
+        if len(scans) > self.config.merge_scans:
+            pick = np.linspace(0, len(scans) - 1, self.config.merge_scans).astype(int)
+            scans = [scans[i] for i in pick]
+        v = self.verify(model_id, (0.0, 0.0, 0.0), scans)
+        if v.ok and self.config.unique and self.ambiguity(model_id, v, scans) is not None:
+            v = Verdict(False, "ambiguous", v.transform, v.inliers, v.conflicts, v.points)
+        if not v.ok:
+            return rigid
+        self.decisions["merged after loop closures"] += 1
+        fix.poses = [se2.compose(v.transform, q) for q in fix.poses]
+        self.correction = fix
+        return Verdict(True, "verified", tuple(T), v.inliers, v.conflicts, v.points)
+
+    def close_loops(self, model_id: str, T) -> Correction | None:
+        """The episode's pose chain laid on ``model_id`` (see :mod:`kgnav.memory.posegraph`):
+        every ``closure_window`` profiles that verify against the stored geometry on their own
+        are a loop closure, each aligned starting from the previous one's transform (the drift
+        changes slowly); inconsistent closures are rejected and counted. None when no closure
+        can be trusted: the episode then keeps the rigid ``T``."""
+        c = self.config
+        geo = self.memory.geometry(model_id)
+        if geo is None or geo.grad_x is None or not self._all:
+            return None
+        chain = [tuple(float(v) for v in p) for p, _, _ in self._all]
+        anchors = []
+        Tk = tuple(T)
+        w = max(int(c.closure_window), 1)
+        for start in range(0, len(self._all), w):
+            stretch = self._all[start:start + w]
+            if len(stretch) < max(w // 2, 1) and anchors:
+                break  # a short tail: its poses follow the chain
+            ends, fans = self._episode_geometry(stretch)
+            if len(ends) == 0:
+                continue
+            Ta = self._align(geo, ends, Tk)
+            # how far the stretch itself moved (T's translation swings with any turn about
+            # the episode's origin, far from here)
+            cx, cy = ends.mean(axis=0)
+            if (math.dist(se2.apply_to_point(Ta, cx, cy), se2.apply_to_point(Tk, cx, cy))
+                    > c.max_correction[0]
+                    or se2.angle_diff(Ta[2], Tk[2]) > math.radians(c.max_correction[1])):
+                self.decisions["loop closure refused: alignment wandered"] += 1
+                continue
+            v = self._judge(geo, ends, fans, Ta)
+            if not v.ok:
+                self.decisions[f"loop closure refused: {v.reason}"] += 1
+                continue
+            mid = start + len(stretch) // 2
+            anchors.append(Anchor(mid, se2.compose(Ta, chain[mid]), f"step {self._steps[mid]}"))
+            Tk = Ta
+        if not anchors:
+            return None
+        fix = correct(chain, anchors, c.drift)
+        if fix is None:
+            self.decisions["loop closures inconsistent"] += 1
+            return None
+        self.decisions["loop closure kept"] += len(fix.kept)
+        self.decisions["loop closure rejected"] += len(fix.rejected)
+        return fix
+
+    def closure_states(self, episode) -> list[tuple[str, bool]]:
+        """The ``episode`` model's states the :attr:`correction`'s loop closures placed, each
+        with whether the optimisation kept it (empty without a correction)."""
+        fix = self.correction
+        if fix is None or not self._steps:
+            return []
+        ids = list(episode.states())
+        steps = np.array([int(episode.graph.nodes[s].get("step", 0)) for s in ids])
+        out = []
+        for kept, anchors in ((True, fix.kept), (False, fix.rejected)):
+            for a in anchors:
+                k = int(np.abs(steps - self._steps[a.node]).argmin())
+                out.append((ids[k], kept))
+        return out
+
+    def corrected_poses(self, episode, T) -> dict[str, tuple[float, float, float]]:
+        """With a :attr:`correction`, each of the ``episode`` model's states' pose bent as its
+        nearest chain node (by step) was, in the episode frame (so that ``T``, episode ->
+        model, still maps the episode onto the model); empty without one."""
+        fix = self.correction
+        if fix is None or not self._steps:
+            return {}
+        steps = np.asarray(self._steps)
+        Tinv = se2.inverse(tuple(T))
+        # the move of each chain node, in the episode frame
+        moves = [se2.compose(se2.compose(Tinv, q), se2.inverse(p))
+                 for (p, _, _), q in zip(self._all, fix.poses, strict=True)]
+        g = episode.graph
+        out = {}
+        for sid in episode.states():
+            d = g.nodes[sid]
+            k = int(np.abs(steps - int(d.get("step", 0))).argmin())
+            out[sid] = se2.compose(moves[k], (d["x"], d["y"], d["theta"]))
+        return out
 
     def _episode_geometry(self, scans):
         ends, fans = [], []

@@ -13,7 +13,14 @@ created it, mapped to the world with ``frame``):
   frame, large enough and near enough to be segmented) that some model object stands for;
 * **models**: how many separate models the house's memory is made of;
 * **goal held** (:func:`holds_true_instance`): whether the models hold a true instance of a
-  class, the benchmark's ``goal_in_memory`` at an episode's start.
+  class, the benchmark's ``goal_in_memory`` at an episode's start;
+* **pose error** (:func:`pose_residuals`, :func:`error_summary`): the absolute trajectory
+  error of the stored states. Each state's stored position (model frame) is paired with the
+  true world position the agent had when the state was recorded (keyed by the state's
+  creator in ``origin``, ``model_id/node_id``); each model is aligned to the truth by one
+  rigid 2-D fit (:func:`rigid_fit_2d`), and the residuals' median and 95th percentile (m)
+  are reported with the number of states. 0 with a perfect pose sensor and exact merges;
+  odometry drift and wrong merge transforms raise it.
 
 >>> from kgnav.sim.house import ObjectInstance
 >>> chair = ObjectInstance(1, "chair", 0, 0.0, 0.0, 0.5, 0.5, 0.0, 0.9, (0, 0, 0))
@@ -27,7 +34,9 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+
+import numpy as np
 
 from kgnav.common import se2
 from kgnav.memory.evidence import belief, object_evidence
@@ -152,3 +161,53 @@ def pooled(per_house: dict[str, dict]) -> dict:
         "houses_with_one_model": sum(m == 1 for m in models),
         "objects": sum(h["objects"] for h in per_house.values()),
     }
+
+
+def rigid_fit_2d(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation ``R`` (2×2) and translation ``t`` minimising ``sum |R p_i + t - q_i|^2``
+    (Kabsch/Umeyama without scale) for points ``p``, ``q`` of shape (n, 2), n >= 1.
+
+    >>> R, t = rigid_fit_2d(np.array([[0., 0], [1, 0]]), np.array([[1., 1], [1, 2]]))
+    >>> np.round(R @ [1, 0] + t, 6).tolist()
+    [1.0, 2.0]
+    """
+    p, q = np.asarray(p, np.float64), np.asarray(q, np.float64)
+    pc, qc = p.mean(0), q.mean(0)
+    a, b = p - pc, q - qc
+    theta = math.atan2(float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])),
+                       float(np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])))
+    c, s = math.cos(theta), math.sin(theta)
+    R = np.array([[c, -s], [s, c]])
+    return R, qc - R @ pc
+
+
+def pose_residuals(models: Iterable[AbstractModel],
+                   truth: Mapping[str, tuple[float, float]]) -> np.ndarray:
+    """Per stored state with a known true pose, the distance (m) between its stored position
+    and its true world position after one rigid 2-D fit of each model to the truth.
+    ``truth``: the true world (x, y) of every recorded state, keyed ``model_id/node_id`` (the
+    first entry of a state's ``origin``: its creator); states without one are left out."""
+    out = []
+    for model in models:
+        p, q = [], []
+        for sid in model.states():
+            d = model.graph.nodes[sid]
+            t = truth.get(d["origin"].split(" ", 1)[0])
+            if t is not None:
+                p.append((d["x"], d["y"]))
+                q.append((t[0], t[1]))
+        if not p:
+            continue
+        p, q = np.array(p), np.array(q)
+        R, t = rigid_fit_2d(p, q)
+        out.append(np.linalg.norm(p @ R.T + t - q, axis=1))
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def error_summary(residuals) -> dict:
+    """``{"median", "p95", "states"}`` of pose residuals (m); None for no states."""
+    r = np.asarray(residuals, np.float64)
+    if r.size == 0:
+        return {"median": None, "p95": None, "states": 0}
+    return {"median": round(float(np.median(r)), 6),
+            "p95": round(float(np.percentile(r, 95)), 6), "states": int(r.size)}

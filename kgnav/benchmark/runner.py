@@ -68,8 +68,10 @@ from kgnav.envs.protocol import episode_seed
 from kgnav.errors import KgnavError
 from kgnav.memory.evidence import forget
 from kgnav.memory.model import AbstractModel
+from kgnav.memory.posegraph import DriftModel
 from kgnav.memory.store import ModelStore
 from kgnav.sim.episodes import SPLITS
+from kgnav.sim.noise import NoiseSpec, parse_noise, resolve_noise
 
 
 @dataclass(frozen=True)
@@ -79,8 +81,11 @@ class EvalConfig:
     directory of your own (``kgnav scenes generate``), passed to the environment in
     :class:`~kgnav.envs.EnvOptions`; ``scenes``: the first K scenes (None: all); ``episodes``:
     per scene (None: the split's default, or all of a directory's); ``threshold``: relocation
-    cosine distance (None: the extractor's calibrated value); ``actuation_noise`` /
-    ``odometry_noise``: the simulator's motion and pose-sensor noise (off, as in ObjectNav).
+    cosine distance (None: the extractor's calibrated value); ``noise``: the environment's
+    motion, pose-sensor and depth noise by spec (:mod:`kgnav.sim.noise`: ``"none"``,
+    ``"locobot"``, ``"locobot,depth=0.01"``, ...; None: :data:`~kgnav.sim.noise.DEFAULT_NOISE`,
+    no noise, as in ObjectNav); ``actuation_noise`` / ``odometry_noise``: the older generic
+    levels instead.
     ``workers``, ``engine`` and ``address`` (:data:`EXECUTION`) say how to run it, never
     what comes out: ``engine`` ``local`` (``workers`` processes) or ``ray`` (a Ray instance
     with ``workers`` CPUs, or the cluster at ``address``)."""
@@ -101,6 +106,10 @@ class EvalConfig:
     max_steps: int = 500  # per episode (the task's 500; lower only for quick checks)
     actuation_noise: float = 0.0
     odometry_noise: float = 0.0
+    noise: str | None = None  # a noise spec (kgnav.sim.noise); None: DEFAULT_NOISE
+    # with a drifting pose sensor, bend each episode onto the model it merges into by its
+    # loop closures (kgnav.memory.posegraph; docs/drift.md); off: one rigid transform
+    drift_correction: bool = True
     forget_below: float = 0.2  # stored objects whose belief falls below this are forgotten
     forget_label_share: float = 0.5  # ... and those whose place mostly gave another class
     preset: str = "default"  # the name of the agent settings (recorded in config.json)
@@ -122,6 +131,9 @@ class EvalConfig:
             raise KgnavError(f"unknown split {self.split!r} (known: {', '.join(SPLITS)})")
         if self.actuation_noise < 0 or self.odometry_noise < 0:
             raise KgnavError("noise levels must be >= 0")
+        # canonical, so that config.json names it and equal settings compare equal
+        object.__setattr__(self, "noise", parse_noise(self.noise).text)
+        resolve_noise(self.noise, self.actuation_noise, self.odometry_noise)  # both: an error
         for v in self.variants:
             if v not in VARIANTS:
                 raise KgnavError(f"unknown variant {v!r} (known: {', '.join(VARIANTS)})")
@@ -138,7 +150,12 @@ class EvalConfig:
     @property
     def env_options(self) -> EnvOptions:
         return EnvOptions(self.split, self.scenes_dir, self.width, self.height, self.max_steps,
-                          self.actuation_noise, self.odometry_noise)
+                          self.actuation_noise, self.odometry_noise, self.noise)
+
+    @property
+    def noise_spec(self) -> NoiseSpec:
+        """The noise this run asks of the environment, resolved (name and parameters)."""
+        return resolve_noise(self.noise, self.actuation_noise, self.odometry_noise)
 
     @property
     def suite(self) -> EnvSuite:
@@ -237,6 +254,9 @@ def _make_agent(cfg: EvalConfig, variant: Variant, env: NavEnv, memory: Memory |
     if variant.policy == "semantic":
         policy.cooccurrence_ = _ROUND.get("cooccurrence", {})
     config = replace(cfg.agent, strategy=variant.strategy)
+    if cfg.drift_correction and cfg.noise_spec.odometry.active and config.relocation.drift is None:
+        # the robot's odometry drifts: its episodes are bent onto the memory before merging
+        config = replace(config, relocation=replace(config.relocation, drift=DriftModel()))
     return ObjectNavAgent.for_env(spec, _segmenter(cfg, spec),
                                   _extractor(extractor_name, cfg.encoder_weights),
                                   policy=policy, memory=memory, config=config)
@@ -306,7 +326,9 @@ def check_domains(cfg: EvalConfig, extractor_name: str) -> None:
 class Outcome:
     """An episode's record, and what it gives the memory: its model, the stored model it
     relocated into (with the episode -> model transform), verified bridges to other stored
-    models (id -> episode -> model transform), and the real instances it saw (ids)."""
+    models (id -> episode -> model transform), the real instances it saw (ids), and the true
+    world (x, y) of every state its model recorded, keyed ``model_id/node_id`` (scoring
+    only: the agent never sees it)."""
 
     record: dict
     model: AbstractModel | None = None
@@ -315,6 +337,7 @@ class Outcome:
     bridges: dict = field(default_factory=dict)
     seen: set = field(default_factory=set)
     files: dict = field(default_factory=dict)  # path -> bytes, for the caller to write
+    truth: dict = field(default_factory=dict)  # "model_id/node_id" -> true world (x, y)
 
 
 #: An instance counts as seen by an episode when this many of its pixels lie within SEEN_RANGE.
@@ -357,6 +380,10 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     gt = _GroundTruth(env, name, episode)
     held = goal_in_memory(gt, memory, goal)  # scoring only: the agent never sees it
     seen = seen_instances(obs) if variant.learns else set()
+    track = variant.learns or memory is not None
+    path = [gt.world_pose()] if track else []  # true pose after each step
+    if cfg.noise_spec.active:  # with drift, judge relocations by where the agent truly was
+        gt.path = path
     done, steps = False, 0
     while not done:
         obs, _r, term, trunc, info = env.step(agent.act(obs))
@@ -365,6 +392,8 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
         done = term or trunc
         if variant.learns:
             seen |= seen_instances(obs)
+        if track:
+            path.append(gt.world_pose())
     if "success" not in info:
         raise EnvProtocolError(f"environment {spec.name!r}: the last step's info has no "
                                f"'success'")
@@ -425,16 +454,18 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
                 record["relocation"]["final"] = {
                     "reason": final.reason, "inliers": round(final.inliers, 3),
                     "conflicts": round(final.conflicts, 3), "points": final.points,
-                    **_relocation_error(gt, reloc.model_id, final.transform, reloc.at)}
+                    **_relocation_error(gt, reloc.model_id, final.transform, reloc.at,
+                                        _at_step(reloc))}
         if into is not None and into.late:  # found from the whole episode at its end
             record["late_merge"] = _relocation_fields(gt, into)
         if into is not None and rel.bridges:
             bridges = {mid: v.transform for mid, v in rel.bridges.items()}
             record["bridges"] = [
-                {"model": mid, **_relocation_error(gt, mid, T, into.at)}
+                {"model": mid, **_relocation_error(gt, mid, T, into.at, _at_step(into))}
                 for mid, T in sorted(bridges.items())]
         return Outcome(record, agent.model_, into.transform if into else None,
-                       into.model_id if into else None, bridges, seen)
+                       into.model_id if into else None, bridges, seen,
+                       truth=state_truth(agent.model_, path))
     return Outcome(record)
 
 
@@ -473,12 +504,33 @@ def _failure(record: dict, variant: Variant, target_source: str | None,
     return classify(False, record["dts"], target_source, target_err)
 
 
+def state_truth(model: AbstractModel, path: list) -> dict[str, tuple[float, float]]:
+    """The true world (x, y) of each state ``model`` recorded, keyed by its creator
+    (``model_id/node_id``, the first entry of its ``origin``): ``path[k]`` is the true pose
+    after ``k`` steps (None where the environment does not say), and a state records its
+    step. Plain data: it goes back from the worker that ran the episode."""
+    out = {}
+    for sid in model.states():
+        d = model.graph.nodes[sid]
+        k = int(d["step"])
+        if 0 <= k < len(path) and path[k] is not None:
+            out[d["origin"].split(" ", 1)[0]] = (float(path[k][0]), float(path[k][1]))
+    return out
+
+
 class _GroundTruth:
     """The optional ground-truth hooks of an environment for one episode
     (:data:`kgnav.envs.GROUND_TRUTH_HOOKS`); every answer is None where a hook is missing."""
 
     def __init__(self, env: NavEnv, name: str, episode: int):
         self.env, self.name, self.episode = env, name, episode
+        # the true world pose after each step, when relocation errors are to be judged by it
+        self.path: list | None = None
+
+    def world_pose(self) -> tuple[float, float, float] | None:
+        """The agent's true world pose now (the ``world_pose`` hook)."""
+        p = getattr(self.env, "world_pose", None)
+        return None if p is None else tuple(float(v) for v in p)
 
     def start(self, i: int):
         f = getattr(self.env, "episode_start", None)
@@ -522,7 +574,14 @@ def _relocation_fields(gt: _GroundTruth, reloc) -> dict:
            "checked": reloc.checked, "supported": reloc.supported}
     if reloc.inliers is not None:
         out.update(inliers=reloc.inliers, conflicts=reloc.conflicts, points=reloc.points)
-    return {**out, **_relocation_error(gt, reloc.model_id, reloc.transform, reloc.at)}
+    return {**out, **_relocation_error(gt, reloc.model_id, reloc.transform, reloc.at,
+                                       _at_step(reloc))}
+
+
+def _at_step(reloc) -> int:
+    """The step at which ``reloc.at`` was the agent's position (a late match places the
+    episode's origin, step 0)."""
+    return 0 if reloc.late else reloc.step
 
 
 def _house_of(model_id: str) -> str:
@@ -539,16 +598,23 @@ def _model_frame(gt: _GroundTruth, model_id: str):
     return gt.start(0 if tag == "pre" else int(tag[1:]))
 
 
-def _relocation_error(gt: _GroundTruth, model_id: str, transform, at) -> dict:
+def _relocation_error(gt: _GroundTruth, model_id: str, transform, at, step=None) -> dict:
     """How far off a frame transform (episode -> model) is, from ground truth: the error (m)
     of the agent's own position ``at`` mapped into the model frame, and the heading error
-    (degrees). Empty for another house's model, or without ground truth."""
+    (degrees). Empty for another house's model, or without ground truth.
+
+    With a drifting pose sensor (``gt.path`` set), ``at`` (the odometry's position at
+    ``step``) is judged against where the agent truly was at that step: the true start frame
+    would count the drift since the start as the relocation's error."""
     frame = _model_frame(gt, model_id)
     if frame is None or at is None:
         return {}
     truth = se2.compose(se2.inverse(frame), gt.start(gt.episode))
     ex, ey = se2.apply_to_point(transform, *at)
     tx, ty = se2.apply_to_point(truth, *at)
+    path = gt.path
+    if path is not None and step is not None and 0 <= step < len(path) and path[step]:
+        tx, ty = se2.apply_to_point(se2.inverse(frame), *path[step][:2])
     return {"error_m": round(math.hypot(ex - tx, ey - ty), 3),
             "error_deg": round(math.degrees(se2.angle_diff(transform[2], truth[2])), 2)}
 
@@ -570,10 +636,11 @@ def _run_task(context: dict, task) -> Outcome:
 
 
 def pre_explore(cfg: EvalConfig, scene: int, extractor_name: str
-                ) -> tuple[AbstractModel, set[int]]:
+                ) -> tuple[AbstractModel, set[int], dict]:
     """One long frontier exploration of a house from its first episode's start: the
     pre-explored model of ``hp``/``sp`` (the paper explores 10000 steps; here until nothing is
-    left to explore or ``cfg.pre_explore_steps``), and the real instances it saw."""
+    left to explore or ``cfg.pre_explore_steps``), the real instances it saw, and the true
+    world (x, y) of its states (:func:`state_truth`)."""
     env = _env(cfg, scene)
     # no look-around: it finds a goal sooner, and the exploration turns all round anyway; with
     # it, a walk of val_00 ended walled in by its own collision marks after 51 steps
@@ -590,6 +657,8 @@ def pre_explore(cfg: EvalConfig, scene: int, extractor_name: str
         agent.reset(None, seed=seed, scene=name, episode=scene * 1000 + 999,
                     model_id=f"{name}-pre")
         seen = seen_instances(obs)
+        gt = _GroundTruth(env, name, 0)
+        path = [gt.world_pose()]
         idle = 0
         stop = agent.actions.index("stop")
         for _ in range(cfg.pre_explore_steps):
@@ -602,15 +671,16 @@ def pre_explore(cfg: EvalConfig, scene: int, extractor_name: str
                 break
             obs, _r, term, trunc, _info = env.step(action)
             seen |= seen_instances(obs)
+            path.append(gt.world_pose())
             if trunc or term:
                 break
     finally:
         if saved is not None:
             env.max_steps = saved
-    return agent.model_, seen
+    return agent.model_, seen, state_truth(agent.model_, path)
 
 
-def _pre_task(_context, task) -> tuple[AbstractModel, set[int]]:
+def _pre_task(_context, task) -> tuple[AbstractModel, set[int], dict]:
     return pre_explore(*task)
 
 
@@ -673,10 +743,11 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
                  if (out is not None and variant.learns) else None)
     models: dict[str, AbstractModel] = {}
     seen: dict[str, set[int]] = {}  # per house, the real instances its episodes saw
+    truth: dict[str, dict] = {}  # per house, the true world (x, y) of its recorded states
     threshold = (_threshold(cfg, _extractor(extractor_name, cfg.encoder_weights))
                  if variant.memory else None)
     if variant.memory == "pre":
-        models, seen = _pre_explored(cfg, extractor_name, out, progress, engine)
+        models, seen, truth = _pre_explored(cfg, extractor_name, out, progress, engine)
         for m in models.values():  # matched at this run's threshold
             m.relocation_threshold = threshold
     if store_dir is not None:  # (both kinds: a memory-map must not find a previous run's)
@@ -706,6 +777,7 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
                     changed, gone = absorb(models, o, cfg.forget_below,
                                            cfg.forget_label_share)
                     seen.setdefault(o.record["scene"], set()).update(o.seen)
+                    truth.setdefault(o.record["scene"], {}).update(o.truth)
                     if store is not None:
                         store.save(models[changed])
                         for mid in gone:
@@ -718,15 +790,19 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
     finally:
         bar.close()
         _ROUND.clear()
-    return records, (memory_fidelity(cfg, models, seen) if variant.memory else None)
+    return records, (memory_fidelity(cfg, models, seen, truth) if variant.memory else None)
 
 
 def memory_fidelity(cfg: EvalConfig, models: dict[str, AbstractModel],
-                    seen: dict[str, set[int]]) -> dict:
+                    seen: dict[str, set[int]], truth: dict[str, dict] | None = None) -> dict:
     """The memory scored against ground truth (:mod:`kgnav.benchmark.fidelity`), per house
     and pooled; None when the environment offers no ground truth for it (``scene_objects``,
-    ``episode_start``)."""
+    ``episode_start``). ``truth``: per house, the true world (x, y) of the recorded states
+    (:func:`state_truth`), for ``pose_error_m``: the stored states' position error after a
+    rigid fit of each model, per house and pooled over every state of every house."""
+    truth = truth or {}
     per_house = {}
+    residuals = []
     for k in cfg.scene_indices:
         env = _env(cfg, k)
         objects = getattr(env, "scene_objects", None)
@@ -737,7 +813,14 @@ def memory_fidelity(cfg: EvalConfig, models: dict[str, AbstractModel],
         mine = [(m, _model_frame(gt, mid)) for mid, m in sorted(models.items())
                 if _house_of(mid) == name]
         per_house[name] = fidelity.score_memory(mine, objects(), seen.get(name))
-    return {"pooled": fidelity.pooled(per_house), "houses": per_house}
+        r = fidelity.pose_residuals((m for m, _ in mine), truth.get(name, {}))
+        per_house[name]["pose_error_m"] = fidelity.error_summary(r)
+        residuals.append(r)
+    pooled = fidelity.pooled(per_house)
+    pooled["pose_error_m"] = fidelity.error_summary(
+        np.concatenate(residuals) if residuals else ())
+    return {"pooled": pooled, "houses": per_house}
+
 
 def _topdown_path(cfg: EvalConfig, out: Path | None, variant: Variant, scene: int,
                   episode: int) -> str | None:
@@ -777,8 +860,11 @@ def _clear_store(path: Path) -> None:
 
 
 def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progress: bool,
-                  engine: Engine) -> dict[str, AbstractModel]:
-    """The hp/sp memory: one pre-explored model per house, built once per output directory."""
+                  engine: Engine
+                  ) -> tuple[dict[str, AbstractModel], dict[str, set[int]], dict[str, dict]]:
+    """The hp/sp memory: one pre-explored model per house, built once per output directory;
+    with the instances each walk saw and the true positions of its states (``truth.json``
+    beside the models; a memory stored without it is scored without ``pose_error_m``)."""
     params = {"split": cfg.source_name, "scenes": cfg.scene_indices, "seed": cfg.seed,
               "forget": [cfg.forget_below, cfg.forget_label_share], "agent": asdict(cfg.agent),
               "steps": cfg.pre_explore_steps,
@@ -786,17 +872,21 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
               "segmenter": cfg.segmenter, "size": [cfg.width, cfg.height]}
     if cfg.env != DEFAULT_ENV:  # (kgnav's keys stay as they were: stored memories stay valid)
         params["env"] = cfg.env
+    if cfg.noise_spec.active:  # a noisy walk makes another memory (noiseless keys unchanged)
+        params["noise"] = cfg.noise_spec.text
     key = json.dumps(params, sort_keys=True)
     store_dir = out / "memory" / "pre-explored" if out is not None else None
     models_at = (store_dir / "models.lbug" if cfg.store == "ladybug" else store_dir
                  ) if store_dir is not None else None
     models: dict[str, AbstractModel] = {}
     seen: dict[str, set[int]] = {}
+    truth: dict[str, dict] = {}
     stored = False  # this output directory already holds this memory
     if _CACHE.get("pre_key") == key:  # built by this process for another run: not rebuilt
         # (copies: a run sets its threshold on the models it uses; the stored memory is as built)
         models = {k: m.copy() for k, m in _CACHE["pre_models"].items()}
         seen = dict(_CACHE["pre_seen"])
+        truth = dict(_CACHE["pre_truth"])
     if store_dir is not None and (store_dir / "params.json").is_file():
         if (store_dir / "params.json").read_text() == key:
             loaded, problems = ModelStore(models_at).load_all()
@@ -807,15 +897,21 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
                 saw = None
             if not problems and len(loaded) == len(cfg.scene_indices) and saw is not None:
                 models, seen, stored = loaded, saw, True
+                try:
+                    truth = {h: {k: tuple(v) for k, v in t.items()} for h, t in
+                             json.loads((store_dir / "truth.json").read_text()).items()}
+                except (OSError, ValueError, AttributeError, TypeError):
+                    truth = {}
     if not models:
         bar = _bar(len(cfg.scene_indices), "pre-explore", progress)
         try:
             tasks = [(cfg, s, extractor_name) for s in cfg.scene_indices]
-            for m, saw in engine.map(_pre_task, tasks, {}, bar):
+            for m, saw, tr in engine.map(_pre_task, tasks, {}, bar):
                 if cfg.forget_below > 0 or cfg.forget_label_share > 0:
                     forget(m, cfg.forget_below, min_label_share=cfg.forget_label_share)
                 models[m.model_id] = m
                 seen[_house_of(m.model_id)] = saw
+                truth[_house_of(m.model_id)] = tr
         finally:
             bar.close()
     if store_dir is not None and not stored:
@@ -826,12 +922,15 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
             store.save(m)
         with atomic_open(store_dir / "seen.json", "w") as f:
             json.dump({h: sorted(v) for h, v in sorted(seen.items())}, f)
+        with atomic_open(store_dir / "truth.json", "w") as f:
+            json.dump(truth, f, sort_keys=True)
         with atomic_open(store_dir / "params.json", "w") as f:
             f.write(key)
     _CACHE["pre_key"] = key
     _CACHE["pre_models"] = {k: m.copy() for k, m in models.items()}
     _CACHE["pre_seen"] = seen
-    return dict(models), dict(seen)
+    _CACHE["pre_truth"] = truth
+    return dict(models), dict(seen), dict(truth)
 
 
 # ---------------------------------------------------------------------- whole benchmark
@@ -1027,7 +1126,8 @@ def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = Tr
         with atomic_open(out_dir / "config.json", "w") as f:
             settings = {k: v for k, v in asdict(cfg).items() if k not in EXECUTION}
             json.dump({**settings, "extractor": extractor_name, "features": features,
-                       "execution": execution}, f, indent=2, sort_keys=True)
+                       "noise_model": cfg.noise_spec.to_dict(), "execution": execution}, f,
+                      indent=2, sort_keys=True)
         write_plots(records, summary, cfg, out_dir)
     return records, summary
 

@@ -48,23 +48,16 @@ def _show(ctx, param, value: str | None) -> tuple[int, int] | None:
     return scene, ep
 
 
-def _noise(ctx, param, value: str | None) -> tuple[float, float]:
-    """``actuation=K,odometry=S`` (either part may be left out) -> (K, S)."""
-    if not value or value == "none":
-        return 0.0, 0.0
-    out = {"actuation": 0.0, "odometry": 0.0}
-    for part in value.split(","):
-        k, _, v = part.partition("=")
-        k = k.strip()
-        if k not in out:
-            raise click.BadParameter(f"expected actuation=K,odometry=S, got {value!r}", ctx, param)
-        try:
-            out[k] = float(v)
-        except ValueError:
-            raise click.BadParameter(f"{k} needs a number, got {v!r}", ctx, param) from None
-        if not out[k] >= 0:
-            raise click.BadParameter(f"{k} must be >= 0, got {v!r}", ctx, param)
-    return out["actuation"], out["odometry"]
+def _noise(ctx, param, value: str | None) -> str | None:
+    """A noise spec (:func:`kgnav.sim.noise.parse_noise`), canonical; None: the default."""
+    if value is None:
+        return None
+    from kgnav.sim.noise import parse_noise
+
+    try:
+        return parse_noise(value).text
+    except KgnavError as e:
+        raise click.BadParameter(str(e), ctx, param) from None
 
 
 @click.command("eval")
@@ -125,10 +118,18 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
               show_default=True, help="Budget of the hp/sp pre-exploration per house.")
 @click.option("--show", callback=_show, default=None, metavar="SCENE:EPISODE",
               help="Draw this episode from above for every variant (default: 0:LAST).")
-@click.option("--noise", callback=_noise, default=None, metavar="actuation=K,odometry=S",
-              help="Motion noise (K scales Gaussian 2.5 cm / 1 cm / 1 deg per move, 2 deg per "
-                   "turn) and pose-sensor noise (S m and S deg per step). Off by default, as "
-                   "in ObjectNav.")
+@click.option("--noise", callback=_noise, default=None, metavar="SPEC",
+              help="Motion, pose-sensor and depth noise: none (the default, as in ObjectNav); "
+                   "locobot (a LoCoBot's motion, fitted on the real robot as in habitat-sim, "
+                   "and wheel odometry that drifts with distance), with optional ,scale=K "
+                   "(every noise times K), ,slip=F (share of a bump's blocked length the "
+                   "odometry reports; 0: a base with a bumper) and ,depth=S (S m of depth "
+                   "noise per metre); or actuation=K,odometry=S (K scales Gaussian 2.5 cm / 1 cm / "
+                   "1 deg per move and 2 deg per turn; S m and S deg of pose error per step). "
+                   "See docs/benchmark.md.")
+@click.option("--drift-correction/--no-drift-correction", default=True, show_default=True,
+              help="With a drifting pose sensor (--noise), bend each episode onto the model it "
+                   "merges into by its loop closures (a GTSAM pose graph; docs/drift.md).")
 @click.option("--preset", type=click.Choice(["default", "paper"]), default="default",
               show_default=True,
               help="Agent settings: default (verified relocation, remembered geometry, "
@@ -147,8 +148,8 @@ def _noise(ctx, param, value: str | None) -> tuple[float, float]:
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, workers, engine,
              address, segmenter, segmenter_weights, allow_domain_mismatch, extractor, threshold,
-             encoder_weights, pre_explore_steps, show, noise, preset, policy, seed, store,
-             quiet) -> None:
+             encoder_weights, pre_explore_steps, show, noise, drift_correction, preset, policy,
+             seed, store, quiet) -> None:
     """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
     from kgnav.agent.loop import PRESETS
     from kgnav.agent.policy import make_policy, policy_names
@@ -188,7 +189,7 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
                      workers=workers, engine=engine, address=address, segmenter=segmenter,
                      extractor=extractor, threshold=threshold, seed=seed,
                      pre_explore_steps=pre_explore_steps,
-                     show=show, actuation_noise=noise[0], odometry_noise=noise[1],
+                     show=show, noise=noise, drift_correction=drift_correction,
                      agent=PRESETS[preset](), forget_below=0.2 if preset == "default" else 0.0,
                      forget_label_share=0.5 if preset == "default" else 0.0,
                      preset=preset, policy=policy, env=env_name,
@@ -234,6 +235,7 @@ def print_summary(summary: dict) -> None:
         t3 = Table("variant", "reloc. after 1st (min/mean)", "reloc. step",
                    "wrong merges (bridges)",
                    "models/house", "objects", "precision (trusted)", "copies", "recall",
+                   "pose err. m (median / p95)",
                    title="Relocation and memory fidelity (against ground truth)")
         for name, s in mem.items():
             p = s["memory"]["pooled"]
@@ -244,7 +246,7 @@ def print_summary(summary: dict) -> None:
                 f"{s.get('wrong_merges', 0)} ({s.get('wrong_bridges', 0)})",
                 " ".join(f"{k}:{v}" for k, v in p["models_per_house"].items()),
                 str(p["objects"]), f"{_f(p['precision'])} ({_f(p['trusted_precision'])})",
-                _f(p["copies"]), _f(p["recall"]))
+                _f(p["copies"]), _f(p["recall"]), _pose_error(p.get("pose_error_m")))
         console.print(t3)
     _print_where_lost(console, summary)
 
@@ -287,6 +289,13 @@ def _print_where_lost(console: Console, summary: dict) -> None:
             t3.add_row(name, shown + (f" … ({len(curve)})" if len(curve) > 10 else ""),
                        _f(s["success_from_fifth_episode"], 3))
         console.print(t3)
+
+
+def _pose_error(e: dict | None) -> str:
+    """The stored states' pose error (fidelity.error_summary): median / p95 (states)."""
+    if not e or e.get("median") is None:
+        return "–"
+    return f"{e['median']:.3f} / {e['p95']:.3f} ({e['states']})"
 
 
 def _f(v, digits: int = 2) -> str:

@@ -62,6 +62,10 @@ def inspect(file: Path, as_json: bool) -> None:
             f"  {'extent':<15}x {ex['x'][0]:.2f}..{ex['x'][1]:.2f} m, "
             f"y {ex['y'][0]:.2f}..{ex['y'][1]:.2f} m"
         )
+    lc = info["loop_closures"]
+    if lc["kept"] or lc["rejected"]:
+        out.print(f"  {'loop closures':<15}{lc['kept']} kept, {lc['rejected']} rejected "
+                  "(drifting episodes bent onto the model)")
     table = _table("class", "objects", "views", "max views", title="class inventory")
     for cls, c in info["classes"].items():
         _row(table, cls, c["objects"], c["views"], c["max_views"])

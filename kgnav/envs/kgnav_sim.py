@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from kgnav.envs.registry import EnvOptions, register_env
 from kgnav.sim.env import ObjectNavEnv
+from kgnav.sim.noise import resolve_noise
 from kgnav.sim.sources import scene_source
 
 __all__ = ["KgnavScenes"]
@@ -21,6 +22,8 @@ class KgnavScenes:
     ``kgnav scenes generate`` (``options.scenes_dir``)."""
 
     def __init__(self, options: EnvOptions):
+        resolve_noise(options.noise, options.actuation_noise,
+                      options.odometry_noise)  # a bad spec: one line now, not in a worker
         self.options = options
         self.source = scene_source(options.split, options.scenes_dir)
         self.name = self.source.name if options.scenes_dir is None else options.scenes_dir
@@ -36,4 +39,4 @@ class KgnavScenes:
         return ObjectNavEnv(src.name, src.scene(k), o.width, o.height,
                             episodes=src.episodes(k, n), max_steps=o.max_steps,
                             actuation_noise=o.actuation_noise,
-                            odometry_noise=o.odometry_noise)
+                            odometry_noise=o.odometry_noise, noise=o.noise)

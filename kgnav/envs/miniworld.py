@@ -7,8 +7,8 @@ Seeded multi-room houses (:mod:`kgnav.envs.miniworld_house`) rendered by MiniWor
   floor, pitched 10° down; z-depth clipped to [0.1, 5] m;
 * actions: kgnav's (0 stop, 1 move_forward, 2 turn_left, 3 turn_right), exactly 0.25 m and
   30°: MiniWorld's randomised step and turn sizes are not used; the agent moves on the
-  house's navigable grid with kgnav's motion rule (optional actuation and odometry noise as in
-  kgnav's simulator);
+  house's navigable grid with kgnav's motion rule (optional actuation, odometry and depth
+  noise as in kgnav's simulator: the same specs, ``--noise locobot`` included);
 * classes: :data:`~kgnav.envs.miniworld_house.CLASSES`; the ``semantic`` frame (class and
   instance ids) comes from the adapter's label pass, read back only for episodes that ask for
   it (``reset(options={"semantic": False})`` skips it);
@@ -46,8 +46,10 @@ from kgnav.envs.miniworld_house import (
 from kgnav.envs.registry import EnvOptions, register_env
 from kgnav.envs.spec import ActionSpec, CameraSpec, EnvSpec
 from kgnav.errors import KgnavError
-from kgnav.sim.dynamics import ACTION_NAMES, STOP, Dynamics, NoiseModel, Odometry
+from kgnav.sim.dynamics import ACTION_NAMES, STOP, Dynamics, Odometry
+from kgnav.sim.env import noisy_depth
 from kgnav.sim.metrics import dts, softspl, spl
+from kgnav.sim.noise import NoiseSpec, resolve_noise
 
 __all__ = ["SPLITS", "MiniWorldHouses", "MiniWorldNav"]
 
@@ -81,6 +83,8 @@ class MiniWorldHouses:
         if options.split not in SPLITS:
             raise KgnavError(f"unknown split {options.split!r} of environment 'miniworld' "
                              f"(known: {', '.join(SPLITS)})")
+        self.noise = resolve_noise(options.noise, options.actuation_noise,
+                                   options.odometry_noise)
         miniworld_dir()  # a one-line error now, not in a worker, when MiniWorld is missing
         self.options = options
         self.seeds = SPLITS[options.split]
@@ -97,7 +101,7 @@ class MiniWorldHouses:
         seed = self.seeds[k]
         house = generate_house(seed, f"mw{seed:04d}")
         return MiniWorldNav(house, generate_episodes(house, self.episode_count(k, n)),
-                            o.width, o.height, o.max_steps, o.actuation_noise, o.odometry_noise)
+                            o.width, o.height, o.max_steps, noise=self.noise)
 
 
 class MiniWorldNav:
@@ -105,14 +109,16 @@ class MiniWorldNav:
 
     def __init__(self, house: House, episodes, width: int = 160, height: int = 120,
                  max_steps: int = 500, actuation_noise: float = 0.0,
-                 odometry_noise: float = 0.0):
+                 odometry_noise: float = 0.0, noise: str | NoiseSpec | None = None):
         if not episodes:
             raise KgnavError(f"house {house.name!r}: no episodes")
         self.house, self.episodes = house, list(episodes)
         self.nav = house.nav
         self.max_steps = int(max_steps)
-        self.noise = NoiseModel.scaled(float(actuation_noise))
+        self.noise_spec = resolve_noise(noise, float(actuation_noise), float(odometry_noise))
+        self.noise = self.noise_spec.actuation
         self.odometry_noise = float(odometry_noise)
+        self._depth_rng: np.random.Generator | None = None
         self.env_spec = EnvSpec("miniworld", camera_spec(width, height), ActionSpec(),
                                 classes=CLASSES, semantic=True, max_steps=self.max_steps,
                                 agent_radius=AGENT_RADIUS)
@@ -132,8 +138,10 @@ class MiniWorldNav:
         self.episode = self.episodes[i]
         rng = np.random.default_rng([0 if seed is None else int(seed), 0x4D57])
         self.dynamics = Dynamics(self.nav, self.noise, np.random.default_rng(rng.integers(2**31)))
-        d = math.radians(self.odometry_noise)
-        self.odometry = Odometry(self.odometry_noise, d, np.random.default_rng(rng.integers(2**31)))
+        self.odometry = Odometry(model=self.noise_spec.odometry,
+                                 rng=np.random.default_rng(rng.integers(2**31)))
+        self._depth_rng = (np.random.default_rng([0 if seed is None else int(seed), 0x4D57, 0xD3])
+                           if self.noise_spec.depth > 0 else None)
         self._start = tuple(float(v) for v in self.episode.start)
         self._world = self._start
         self._steps, self._path, self._done, self._stopped = 0, 0.0, False, False
@@ -153,7 +161,7 @@ class MiniWorldNav:
         self._world = res.pose
         self._path += res.travelled
         self.trajectory.append(self._world)
-        pose = (self.odometry.update(before, self._world) if a != STOP
+        pose = (self.odometry.update(before, self._world, res.blocked) if a != STOP
                 else np.array(self.odometry.pose, np.float64))
         self._stopped = a == STOP
         truncated = not self._stopped and self._steps >= self.max_steps
@@ -232,6 +240,10 @@ class MiniWorldNav:
     # ------------------------------------------------------------------ internals
     def _observe(self, pose) -> dict[str, Any]:
         rgb, depth, sem = self.render_at(*self._world, semantic=self._semantic)
+        if self._depth_rng is not None:
+            cam = self.env_spec.camera
+            depth = noisy_depth(depth, self.noise_spec.depth, self._depth_rng, cam.min_depth,
+                                cam.max_depth)
         obs = {"rgb": rgb, "depth": depth, "pose": np.asarray(pose, np.float64),
                "objectgoal": np.int64(CLASSES.index(self.episode.goal_class) + 1)}
         if sem is not None:

@@ -36,7 +36,11 @@ class EnvOptions:
     """What a run asks of an environment. ``split``: a named set of scenes (the environment's
     own names; kgnav's are ``val``, ``train``, ...); ``scenes_dir``: a directory of scenes
     instead; ``width`` × ``height``: the image size; ``max_steps``: actions per episode;
-    ``actuation_noise``, ``odometry_noise``: motion and pose-sensor noise levels."""
+    ``noise``: a noise spec (:func:`kgnav.sim.noise.parse_noise`: ``"locobot"``,
+    ``"locobot,depth=0.01"``, ...; None: :data:`kgnav.sim.noise.DEFAULT_NOISE`);
+    ``actuation_noise``, ``odometry_noise``: the older generic motion and pose-sensor noise
+    levels (with a named model in ``noise``, leave them 0). An environment that cannot honour
+    the noise it is given says so in one line (:class:`~kgnav.errors.KgnavError`)."""
 
     split: str = "val"
     scenes_dir: str | None = None
@@ -45,6 +49,7 @@ class EnvOptions:
     max_steps: int = 500
     actuation_noise: float = 0.0
     odometry_noise: float = 0.0
+    noise: str | None = None
 
 
 class EnvSuite(Protocol):

@@ -51,6 +51,9 @@ TEMPLATE_DIR = pathlib.Path(__file__).with_name("templates")
 TEMPLATE = "graph.html"
 
 STATE_COLOR = {"background": "#9fb3c8", "border": "#4a5d73"}
+#: States a loop closure placed (kgnav.memory.posegraph): kept by the optimisation, or rejected
+CLOSURE_COLOR = {True: {"background": "#2e9e44", "border": "#14532d"},
+                 False: {"background": "#d62728", "border": "#7f1d1d"}}
 ACTION_COLORS = {
     "move_forward": "#4a5d73",
     "turn_left": "#2b8cbe",
@@ -150,6 +153,16 @@ def _state_node(model: AbstractModel, sid: str, d: dict) -> dict:
     return {"id": sid, "x": px, "y": py, "title": title, "color": STATE_COLOR}
 
 
+def _closures(model: AbstractModel) -> dict[str, list[tuple[int, bool]]]:
+    """State id -> the loop closures that placed it: (episode, kept) each."""
+    out: dict[str, list[tuple[int, bool]]] = defaultdict(list)
+    for c in model.loop_closures:
+        sid = model.known_node(c["state"])
+        if sid is not None:
+            out[sid].append((c["episode"], c["kept"]))
+    return dict(out)
+
+
 def _object_node(oid: str, d: dict, colour: str, ev=None) -> dict:
     title = (
         f"object {oid}: {d['cls']}\n"
@@ -182,6 +195,12 @@ def build_network(model: AbstractModel, *, title: str, show_sees: bool | None = 
     colours = {cls: class_color(i) for i, cls in enumerate(model.classes)}
     # states first: vis draws in data order, so the objects end up on top of the path
     nodes = [_state_node(model, n, g.nodes[n]) for n in model.states()]
+    closures = _closures(model)
+    for node in nodes:
+        for episode, kept in closures.get(node["id"], ()):
+            node["title"] += (f"\nloop closure of episode {episode}: "
+                              f"{'kept' if kept else 'rejected'}")
+            node.update(shape="diamond", size=7, color=CLOSURE_COLOR[kept])
     evidence = object_evidence(model)
     nodes += [
         _object_node(n, g.nodes[n], colours.get(g.nodes[n]["cls"], OTHER_COLOR), evidence[n])
@@ -246,6 +265,7 @@ def build_network(model: AbstractModel, *, title: str, show_sees: bool | None = 
             ("objects", model.n_objects),
             ("transitions", model.n_transitions),
             ("views", len(sees)),
+            *([("loop closures", sum(len(v) for v in closures.values()))] if closures else []),
         ],
         "n_sees": len(sees),
         "show_sees": show_sees,

@@ -159,6 +159,7 @@ def merge(
         if mid != out.model_id and mid not in lineage:
             lineage.append(mid)
     g.graph["merged_from"] = json.dumps(lineage)
+    out.add_loop_closures(src.loop_closures)
     episodes = out.episodes
     episodes += [e for e in src.episodes if e not in episodes]
     g.graph["episodes"] = json.dumps(episodes)

@@ -21,7 +21,7 @@ graph          —                         ``kgnav_schema``, ``model_id``, ``fea
                                          ``extractor``, ``classes``, ``episodes``,
                                          ``merged_from``, ``scan`` (range profile geometry,
                                          JSON, or empty), tolerances; optional
-                                         ``relocation_threshold``
+                                         ``relocation_threshold``, ``loop_closures``
 ============== ========================= ====================================================
 
 ``origin`` is provenance: the space-separated ``"<model_id>/<node_id>"`` of every recorded node
@@ -224,6 +224,26 @@ class AbstractModel:
             raise ValueError(f"relocation_threshold must be a cosine distance in (0, 2], "
                              f"got {value!r}")
         self.graph.graph["relocation_threshold"] = float(value)
+
+    @property
+    def loop_closures(self) -> list[dict]:
+        """The loop closures that laid drifting episodes onto this model
+        (:mod:`kgnav.memory.posegraph`): ``{"state": origin, "episode": e, "kept": bool}``
+        each, ``state`` the recorded node (``model_id/node_id``) the closure placed; rejected
+        closures are kept too, so that a wrong one can be looked at."""
+        return json.loads(self.graph.graph.get("loop_closures", "[]"))
+
+    def add_loop_closures(self, closures: Iterable[dict]) -> None:
+        """Record ``closures`` (see :attr:`loop_closures`); one already recorded is skipped."""
+        have = self.loop_closures
+        seen = {(c["state"], c["episode"]) for c in have}
+        for c in closures:
+            c = {"state": str(c["state"]), "episode": int(c["episode"]), "kept": bool(c["kept"])}
+            if (c["state"], c["episode"]) not in seen:
+                seen.add((c["state"], c["episode"]))
+                have.append(c)
+        if have:
+            self.graph.graph["loop_closures"] = json.dumps(have, separators=(",", ":"))
 
     @property
     def scan(self) -> ScanGeometry | None:

@@ -166,6 +166,8 @@ def summary(model: AbstractModel) -> dict:
         "actions": dict(sorted(actions.items())),
         "episodes": model.episodes,
         "merged_from": model.merged_from,
+        "loop_closures": {"kept": sum(c["kept"] for c in model.loop_closures),
+                          "rejected": sum(not c["kept"] for c in model.loop_closures)},
         "extent": (
             {"x": [min(xs), max(xs)], "y": [min(ys), max(ys)]} if xs else None
         ),

@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import gymnasium as gym
@@ -39,6 +40,7 @@ from kgnav.sim.episodes import (
 from kgnav.sim.house import AGENT_RADIUS, Scene
 from kgnav.sim.metrics import SUCCESS_DISTANCE, dts, softspl, spl
 from kgnav.sim.navmesh import NavMap
+from kgnav.sim.noise import NoiseSpec, resolve_noise
 from kgnav.sim.render import CAMERA_HEIGHT, HFOV_DEG, MAX_DEPTH, MIN_DEPTH, Renderer
 
 SUCCESS_REWARD = 2.5
@@ -54,6 +56,8 @@ class ObjectNavEnv(gym.Env):
     ``actuation_noise`` is a :class:`NoiseModel` or a float multiplier of
     :meth:`NoiseModel.scaled`; ``odometry_noise`` (m, and the same number of degrees) is the
     per-step standard deviation of the pose sensor's dead-reckoning error. Both default to 0.
+    ``noise``: a named noise model instead (:mod:`kgnav.sim.noise`: ``"locobot"``,
+    ``"locobot,depth=0.01"``, ... or a :class:`~kgnav.sim.noise.NoiseSpec`; default none).
 
     Episode choice at ``reset``: ``options={"episode": i}`` (index or :class:`Episode`), else
     ``seed % len(episodes)`` when a seed is given, else the episode after the previous one.
@@ -82,6 +86,7 @@ class ObjectNavEnv(gym.Env):
         max_steps: int = MAX_STEPS,
         actuation_noise: float | NoiseModel = 0.0,
         odometry_noise: float = 0.0,
+        noise: str | NoiseSpec | None = None,
         render_mode: str | None = None,
         cache: bool = True,
     ):
@@ -100,8 +105,14 @@ class ObjectNavEnv(gym.Env):
         self.renderer = Renderer(self.scene, width, height, hfov_deg, camera_height,
                                  min_depth, max_depth)
         self.max_steps = int(max_steps)
-        self.noise = (actuation_noise if isinstance(actuation_noise, NoiseModel)
-                      else NoiseModel.scaled(float(actuation_noise)))
+        if isinstance(actuation_noise, NoiseModel):
+            spec = resolve_noise(noise, 0.0, odometry_noise)
+            if actuation_noise.active:
+                spec = replace(spec, name="custom", actuation=actuation_noise)
+        else:
+            spec = resolve_noise(noise, float(actuation_noise), float(odometry_noise))
+        self.noise_spec = spec
+        self.noise = spec.actuation
         self.odometry_noise = float(odometry_noise)
         self.render_mode = render_mode
         H, W = int(height), int(width)
@@ -129,6 +140,7 @@ class ObjectNavEnv(gym.Env):
         self.episode: Episode = self.episodes[0]
         self._world = (0.0, 0.0, 0.0)
         self._done = True
+        self._depth_rng: np.random.Generator | None = None
         self._obs: dict[str, Any] | None = None
         self.trajectory: list[tuple[float, float, float]] = []
 
@@ -149,8 +161,9 @@ class ObjectNavEnv(gym.Env):
             self._next_episode = (i + 1) % len(self.episodes)
         a, b = (int(v) for v in self.np_random.integers(0, 2**31 - 1, size=2))
         self.dynamics = Dynamics(self.nav, self.noise, np.random.default_rng(a))
-        d = math.radians(self.odometry_noise)
-        self.odometry = Odometry(self.odometry_noise, d, np.random.default_rng(b))
+        self.odometry = Odometry(model=self.noise_spec.odometry, rng=np.random.default_rng(b))
+        self._depth_rng = (np.random.default_rng([a, b, 0xD3]) if self.noise_spec.depth > 0
+                           else None)
         self._start = tuple(float(v) for v in self.episode.start)
         self._world = self._start
         self._steps = 0
@@ -179,8 +192,8 @@ class ObjectNavEnv(gym.Env):
         self._collided = res.collided
         self._path += res.travelled
         self.trajectory.append(self._world)
-        pose = self.odometry.update(before, self._world) if a != STOP else np.array(
-            self.odometry.pose, np.float64)
+        pose = self.odometry.update(before, self._world, res.blocked) if a != STOP else \
+            np.array(self.odometry.pose, np.float64)
         terminated = a == STOP
         truncated = not terminated and self._steps >= self.max_steps
         self._stopped = terminated
@@ -259,6 +272,9 @@ class ObjectNavEnv(gym.Env):
     # ------------------------------------------------------------------ internals
     def _observe(self, pose) -> dict[str, Any]:
         rgb, depth, sem = self.renderer.render(*self._world)
+        if self._depth_rng is not None:
+            depth = noisy_depth(depth, self.noise_spec.depth, self._depth_rng,
+                                self.renderer.min_depth, self.renderer.max_depth)
         pose = np.asarray(pose, np.float64)
         self._obs = {
             "rgb": rgb,
@@ -299,3 +315,10 @@ class ObjectNavEnv(gym.Env):
             "done": self._done,
             "last_action": ACTION_NAMES[self._last] if self._last is not None else None,
         }
+
+
+def noisy_depth(depth: np.ndarray, per_m: float, rng: np.random.Generator, lo: float,
+                hi: float) -> np.ndarray:
+    """``depth`` with Gaussian noise of ``per_m`` m per metre of depth, clipped to [lo, hi]."""
+    d = depth + rng.standard_normal(depth.shape) * (per_m * depth)
+    return np.clip(d, lo, hi).astype(np.float32)

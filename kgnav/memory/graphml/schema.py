@@ -68,7 +68,7 @@ INT64 = (-(2**63), 2**63 - 1)
 
 #: Schema versions this release reads. Version-1 files are accepted as they are; when a version
 #: adds attributes, :func:`upgrade` is where an older file's model gets them.
-READABLE_VERSIONS = (1, 2, 3)
+READABLE_VERSIONS = (1, 2, 3, 4)
 
 
 # ---------------------------------------------------------------------------------------- codecs
@@ -242,6 +242,32 @@ class JsonList(_String):
 
 
 @dataclass(frozen=True)
+class LoopClosures(_String):
+    """A JSON list of loop closures: ``{"state": "<model_id>/s<n>", "episode": <int>,
+    "kept": <bool>}`` each (:attr:`kgnav.memory.model.AbstractModel.loop_closures`)."""
+
+    def parse(self, text: str, ctx) -> str:
+        try:
+            value = json.loads(text)
+        except (ValueError, RecursionError):
+            raise ValueError(f"not JSON ({show(text)})") from None
+        if not isinstance(value, list):
+            raise ValueError(f"not a JSON list ({show(text)})")
+        for x in value:
+            ok = (isinstance(x, dict) and set(x) == {"state", "episode", "kept"}
+                  and isinstance(x["state"], str) and _STATE_ORIGIN.fullmatch(x["state"])
+                  and type(x["episode"]) is int and INT64[0] <= x["episode"] <= INT64[1]
+                  and type(x["kept"]) is bool)
+            if not ok:
+                raise ValueError(f"item {show(json.dumps(x))} is not a loop closure "
+                                 '({"state": "model/sN", "episode": N, "kept": true|false})')
+        return text
+
+
+_STATE_ORIGIN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,127}/s[0-9]{1,18}")
+
+
+@dataclass(frozen=True)
 class Classes(_String):
     """Comma-separated, non-empty class names."""
 
@@ -369,6 +395,8 @@ ATTRIBUTES: tuple[Attr, ...] = (
     # version 3: the relocation threshold (cosine distance) the model's states are matched at;
     # absent when none was recorded (a model built without a memory, or read from an older file)
     Attr("graph", "relocation_threshold", Double(0.0, 2.0), required=False, since=3),
+    # version 4: the loop closures that bent episodes onto the model (absent: none recorded)
+    Attr("graph", "loop_closures", LoopClosures(), required=False, since=4),
 )
 
 DOMAIN = {

@@ -103,7 +103,7 @@ def cases(v: str) -> dict[str, str | bytes]:
         "default_value": edit(v, 'attr.name="pixels" attr.type="long" />',
                               'attr.name="pixels" attr.type="long"><default>0</default></key>'),
         "underscore_int": edit(v, '<data key="e3">400</data>', '<data key="e3">4_00</data>'),
-        "schema_version_4": edit(v, '<data key="g0">1</data>', '<data key="g0">4</data>'),
+        "schema_version_99": edit(v, '<data key="g0">1</data>', '<data key="g0">99</data>'),
         "yed_graphics": edit(
             edit(v, NODE_KEYS,
                  NODE_KEYS + '<key id="d6" for="node" yfiles.type="nodegraphics"/>\n'),

@@ -1,0 +1,167 @@
+"""The benchmark's pose error of stored states (fidelity.pose_residuals / error_summary, the
+runner's state_truth and summary.json's memory.pooled.pose_error_m)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from kgnav.benchmark import fidelity
+from kgnav.benchmark.runner import EvalConfig, run_eval, state_truth
+from kgnav.common import se2
+from kgnav.memory.merge import merge
+from kgnav.memory.model import AbstractModel
+
+DIM = 4
+
+
+def _model(model_id: str, poses, episode: int = 0) -> AbstractModel:
+    """A model whose state k sits at ``poses[k]`` (model frame), recorded at step k; features
+    differ per state so that no two coincide."""
+    m = AbstractModel(feature_dim=DIM, model_id=model_id)
+    rng = np.random.default_rng(len(poses))
+    for k, p in enumerate(poses):
+        m.add_state(rng.normal(size=DIM).astype(np.float32), pose=p, episode=episode, step=k)
+    assert m.n_states == len(poses)
+    return m
+
+
+def _truth_of(m: AbstractModel, T) -> dict:
+    """True world positions: the model's own positions moved by the rigid ``T``."""
+    out = {}
+    for s in m.states():
+        d = m.graph.nodes[s]
+        out[d["origin"].split()[0]] = se2.apply_to_point(T, d["x"], d["y"])
+    return out
+
+
+def test_rigid_fit_recovers_a_known_transform():
+    rng = np.random.default_rng(0)
+    p = rng.uniform(-3, 3, (20, 2))
+    th = 0.7
+    R0 = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
+    q = p @ R0.T + (2.0, -1.0)
+    R, t = fidelity.rigid_fit_2d(p, q)
+    assert np.allclose(R, R0) and np.allclose(t, (2.0, -1.0))
+
+
+def test_a_rigid_offset_is_no_error():
+    m = _model("h-e000", [(0.25 * k, 0.1 * k * k / 10, 0.0) for k in range(12)])
+    truth = _truth_of(m, (4.0, -2.0, 1.2))  # the model frame is anywhere in the world
+    r = fidelity.pose_residuals([m], truth)
+    assert r.shape == (12,) and r.max() < 1e-9
+    s = fidelity.error_summary(r)
+    assert s["states"] == 12 and s["median"] == 0.0 and s["p95"] == 0.0
+
+
+def test_a_bent_trajectory_has_a_known_error():
+    # stored: a cross of four states 1 m from its centre; truth: the same cross 10 cm larger.
+    # By symmetry the best rigid fit is the identity, so every state is off by 0.1 m.
+    stored = [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (-1.0, 0.0, 0.0), (0.0, -1.0, 0.0)]
+    m = _model("h-e001", stored)
+    truth = {m.graph.nodes[s]["origin"]: (1.1 * m.graph.nodes[s]["x"],
+                                          1.1 * m.graph.nodes[s]["y"]) for s in m.states()}
+    r = fidelity.pose_residuals([m], truth)
+    assert np.allclose(r, 0.1)
+    # a straight stored walk whose true path turned 90 degrees halfway (a heading error):
+    # the fit cannot undo it, and the ends are off most
+    straight = [(0.5 * k, 0.0, 0.0) for k in range(9)]
+    bent = [(0.5 * k, 0.0) if k <= 4 else (2.0, 0.5 * (k - 4)) for k in range(9)]
+    m2 = _model("h-e002", straight)
+    truth2 = {m2.graph.nodes[s]["origin"]: bent[m2.graph.nodes[s]["step"]] for s in m2.states()}
+    r2 = fidelity.pose_residuals([m2], truth2)
+    assert r2.max() > 0.5 and r2[0] > r2[4]
+    # the fit is rigid: the same bent truth, moved, gives the same residuals
+    moved = {k: se2.apply_to_point((1.0, 5.0, -0.4), *v) for k, v in truth2.items()}
+    assert np.allclose(fidelity.pose_residuals([m2], moved), r2)
+    s = fidelity.error_summary(np.concatenate([r, r2]))
+    assert s["states"] == 13 and s["median"] == pytest.approx(float(np.median(
+        np.concatenate([r, r2]))), abs=1e-6)
+
+
+def test_each_model_is_aligned_on_its_own_and_unknown_states_are_left_out():
+    a = _model("h-e000", [(0.3 * k, 0.0, 0.0) for k in range(6)])
+    b = _model("h-e001", [(0.0, 0.3 * k, 0.0) for k in range(6)], episode=1)
+    truth = {**_truth_of(a, (1.0, 1.0, 0.5)), **_truth_of(b, (-3.0, 2.0, -2.0))}
+    assert fidelity.pose_residuals([a, b], truth).max() < 1e-9
+    partial = dict(list(truth.items())[:4])
+    assert fidelity.pose_residuals([a, b], partial).shape == (4,)
+    assert fidelity.error_summary(fidelity.pose_residuals([a], {})) == {
+        "median": None, "p95": None, "states": 0}
+
+
+def test_merged_models_keep_their_states_truth_by_origin():
+    # two episodes of one house, each in its own start frame; the true world poses of both
+    first = [(0.25 * k, 0.0, 0.0) for k in range(8)]
+    second = [(0.0, 0.25 * k, math.pi / 2) for k in range(8)]
+    a, b = _model("h-e000", first), _model("h-e001", second, episode=1)
+    frame_a, frame_b = (2.0, 3.0, 0.3), (5.0, 1.0, 2.0)
+    truth = {**_truth_of(a, frame_a), **_truth_of(b, frame_b)}
+    exact = se2.compose(se2.inverse(frame_a), frame_b)  # episode b -> model a frame
+    good = merge(a, b, transform=exact)
+    assert good.n_states == 16
+    assert fidelity.pose_residuals([good], truth).max() < 1e-9
+    # a merge 0.5 m off: the stored states of the two episodes no longer fit one frame
+    wrong = merge(a, b, transform=(exact[0] + 0.5, exact[1], exact[2]))
+    r = fidelity.pose_residuals([wrong], truth)
+    assert r.shape == (16,) and 0.03 < np.median(r) < 0.5 and r.max() > 0.15
+
+
+def test_state_truth_pairs_states_with_the_pose_of_their_step():
+    m = _model("h-e003", [(0.25 * k, 0.0, 0.0) for k in range(5)])
+    path = [(10.0 + k, 20.0, 0.0) for k in range(5)]
+    t = state_truth(m, path)
+    assert t == {f"h-e003/s{k}": (10.0 + k, 20.0) for k in range(5)}
+    assert state_truth(m, [None] * 5) == {} and len(state_truth(m, path[:2])) == 2
+
+
+@pytest.fixture(scope="module")
+def runs():
+    base = dict(split="val-small", variants=("si",), scenes=1, episodes=2, max_steps=80,
+                extractor="opencv-gist", segmenter="clean")
+    return {n: run_eval(EvalConfig(**base, noise=n), out=None, progress=False)[1]
+            for n in ("none", "locobot")}
+
+
+def test_summary_scores_the_stored_poses(runs):
+    clean = runs["none"]["si"]["memory"]
+    e = clean["pooled"]["pose_error_m"]
+    assert e["states"] > 50 and e["median"] < 1e-4 and e["p95"] < 1e-3
+    (house,) = clean["houses"].values()
+    assert house["pose_error_m"] == e
+    noisy = runs["locobot"]["si"]["memory"]["pooled"]["pose_error_m"]
+    assert noisy["states"] > 50 and noisy["median"] > 5e-3 and noisy["p95"] > noisy["median"]
+
+
+class _Starts:
+    """An environment that only says where its episodes start (world poses)."""
+
+    def __init__(self, starts):
+        self.starts = starts
+
+    def episode_start(self, i):
+        return self.starts[i]
+
+
+def test_with_drift_a_relocation_is_judged_by_where_the_agent_truly_was():
+    """Episode 1 of house h relocates into h-e000 at step 40, where its odometry says (5, 0)
+    but the agent truly stood 0.4 m to the side of that. A transform that places the agent
+    where it truly was has no error once the true path is known; judged by the true start
+    frame alone, the drift since the start would be counted as the relocation's error."""
+    from kgnav.benchmark.runner import _GroundTruth, _relocation_error
+
+    starts = {0: (0.0, 0.0, 0.0), 1: (2.0, 1.0, 0.5)}
+    gt = _GroundTruth(_Starts(starts), "h", 1)
+    at = (5.0, 0.0)
+    true_world = se2.apply_to_point(starts[1], 5.0, 0.4)  # where the agent really was
+    # the transform the relocation found: maps the odometry's (5, 0) onto the true place
+    T = se2.compose(starts[1], (0.0, 0.4, 0.0))
+    assert math.dist(se2.apply_to_point(T, *at), true_world) < 1e-9
+    start_frame = _relocation_error(gt, "h-e000", T, at, 40)
+    assert start_frame["error_m"] == pytest.approx(0.4, abs=1e-3)  # the drift, not an error
+    gt.path = [None] * 40 + [(*true_world, 0.0)]
+    assert _relocation_error(gt, "h-e000", T, at, 40)["error_m"] == 0.0
+    assert _relocation_error(gt, "h-e000", T, at, 41)["error_m"] == pytest.approx(0.4, abs=1e-3)
+    assert _relocation_error(gt, "other-e000", T, at, 40) == {}

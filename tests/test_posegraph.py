@@ -1,0 +1,316 @@
+"""Drift correction: pairwise-consistent loop closures bend a drifting pose chain onto a stored
+model (kgnav.memory.posegraph), and the relocalizer finds those closures in a drifting episode."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from kgnav.agent.memory import Memory
+from kgnav.agent.relocation import Relocalizer, RelocationConfig
+from kgnav.agent.state_creator import AbstractState
+from kgnav.common import se2
+from kgnav.memory.model import AbstractModel, Detection
+from kgnav.memory.posegraph import Anchor, DriftModel, bend, consistent, correct
+from tests.test_relocation import DIM, NO_MATCH, ROOM_A, SCAN, cast, unit
+
+
+def drifting(n: int = 81, bias: float = math.radians(0.2), seed: int = 0):
+    """A true path (a slow arc) and the odometry that integrated it with a heading bias per
+    step and small random errors: drift that grows with the distance driven."""
+    rng = np.random.default_rng(seed)
+    truth = [(0.0, 0.0, 0.0)]
+    odo = [(0.0, 0.0, 0.0)]
+    for _ in range(n - 1):
+        step = (0.25, 0.0, math.radians(2.0))
+        truth.append(se2.compose(truth[-1], step))
+        noisy = (0.25 + rng.normal(0, 0.01), rng.normal(0, 0.005), step[2] + bias)
+        odo.append(se2.compose(odo[-1], noisy))
+    return truth, odo
+
+
+def _errors(poses, truth) -> np.ndarray:
+    return np.array([math.dist(p[:2], t[:2]) for p, t in zip(poses, truth, strict=True)])
+
+
+def test_loop_closures_correct_a_drifting_chain():
+    truth, odo = drifting()
+    rigid = [se2.compose(se2.compose(truth[0], se2.inverse(odo[0])), p) for p in odo]
+    before = _errors(rigid, truth)
+    anchors = [Anchor(i, truth[i]) for i in range(0, len(odo), 10)]
+    fix = correct(odo, anchors, DriftModel())
+    assert fix is not None and not fix.rejected and len(fix.kept) == len(anchors)
+    after = _errors(fix.poses, truth)
+    assert before.max() > 1.0  # the odometry really drifted: over a metre by the end
+    assert after.max() < 0.15 and np.median(after) < 0.05
+    assert fix.summary == {"anchors": len(anchors), "kept": len(anchors), "rejected": 0}
+
+
+def test_a_wrong_loop_closure_among_right_ones_is_rejected():
+    truth, odo = drifting()
+    right = [Anchor(i, truth[i]) for i in range(0, len(odo), 10)]
+    # a look-alike room: the place 2 m away, turned a quarter
+    wrong = Anchor(35, se2.compose(truth[35], (2.0, 0.0, math.pi / 2)))
+    fix = correct(odo, [*right[:4], wrong, *right[4:]], DriftModel())
+    assert fix.rejected == [wrong]
+    clean = correct(odo, right, DriftModel())
+    assert np.allclose(fix.poses, clean.poses, atol=1e-6)
+
+
+def test_one_anchor_moves_the_chain_rigidly():
+    _, odo = drifting(21)
+    T = (3.0, -1.0, 0.5)
+    fix = correct(odo, [Anchor(7, se2.compose(T, odo[7]))], DriftModel())
+    assert np.allclose(fix.poses, [se2.compose(T, p) for p in odo], atol=1e-6)
+
+
+def test_anchors_that_all_disagree_are_not_trusted():
+    _, odo = drifting(21)
+    a = Anchor(0, odo[0])
+    b = Anchor(20, se2.compose(odo[20], (3.0, 0.0, 1.0)))  # 3 m and 57 degrees off the odometry
+    assert consistent(odo, [a, b], DriftModel()) == []
+    assert correct(odo, [a, b], DriftModel()) is None
+
+
+def test_the_bound_grows_with_the_distance_driven():
+    """The same 0.3 m disagreement is consistent after a long drive, not after a short one."""
+    _, odo = drifting(81, bias=0.0)
+    near = [Anchor(0, odo[0]), Anchor(2, se2.compose(odo[2], (0.3, 0.0, 0.0)))]
+    far = [Anchor(0, odo[0]), Anchor(80, se2.compose(odo[80], (0.3, 0.0, 0.0)))]
+    assert consistent(odo, near, DriftModel()) == []
+    assert consistent(odo, far, DriftModel()) == [0, 1]
+
+
+def test_an_anchor_outside_the_chain_is_an_error():
+    with pytest.raises(ValueError, match="outside the chain"):
+        correct([(0.0, 0.0, 0.0)], [Anchor(3, (0.0, 0.0, 0.0))], DriftModel())
+
+
+def _model_with_objects() -> AbstractModel:
+    m = AbstractModel(4, model_id="m", extractor="toy")
+    det = Detection("chair", (1.0, 0.5, 0.4), (0, 0, 10, 10), 1.0, 50)
+    m.add_state(np.eye(4)[0], (0.0, 0.0, 0.0), [det], step=0)
+    m.add_state(np.eye(4)[1], (0.5, 0.0, 0.3), [det], step=1)
+    m.add_state(np.eye(4)[2], (1.0, 1.0, 1.0), [Detection("bed", (2.0, 2.0, 0.3),
+                                                           (0, 0, 10, 10), 1.5, 90)], step=2)
+    return m
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(-5, 5), st.floats(-5, 5), st.floats(-math.pi, math.pi))
+def test_bending_every_state_by_one_transform_is_the_rigid_transform(x, y, t):
+    T = (x, y, t)
+    m = _model_with_objects()
+    g = m.graph
+    poses = {s: se2.compose(T, (g.nodes[s]["x"], g.nodes[s]["y"], g.nodes[s]["theta"]))
+             for s in m.states()}
+    bent = bend(m.copy(), poses)
+    rigid = m.copy().transform(T)
+    for n in rigid.graph.nodes:
+        a, b = bent.graph.nodes[n], rigid.graph.nodes[n]
+        assert a["x"] == pytest.approx(b["x"], abs=1e-9)
+        assert a["y"] == pytest.approx(b["y"], abs=1e-9)
+    for u, v, k, d in rigid.graph.edges(keys=True, data=True):
+        if "obs" in d:
+            assert np.allclose(bent.graph.edges[u, v, k]["obs"], d["obs"], atol=1e-9)
+
+
+def test_objects_move_with_the_states_that_saw_them():
+    m = _model_with_objects()
+    bed = next(o for o in m.objects() if m.graph.nodes[o]["cls"] == "bed")
+    chair = next(o for o in m.objects() if m.graph.nodes[o]["cls"] == "chair")
+    chair_xy = (m.graph.nodes[chair]["x"], m.graph.nodes[chair]["y"])
+    bend(m, {"s2": (1.0, 1.5, 1.0)})  # only the state that saw the bed moves, 0.5 m north
+    assert (m.graph.nodes[bed]["x"], m.graph.nodes[bed]["y"]) == pytest.approx((2.0, 2.5))
+    assert (m.graph.nodes[chair]["x"], m.graph.nodes[chair]["y"]) == pytest.approx(chair_xy)
+    assert m.nearest_object("bed", 2.0, 2.5, 0.1) == bed  # the spatial index follows
+
+
+# --------------------------------------------------------------------------- in the relocalizer
+LOOP = [(1.0, 1.0), (5.0, 1.0), (5.0, 3.2), (1.0, 3.2)]
+
+
+def tour(laps: int = 2):
+    """True poses driving round room A (0.25 m moves, 30-degree turns at the corners)."""
+    poses = []
+    x, y = LOOP[0]
+    heading = 0.0
+    for _ in range(laps):
+        for k in range(4):
+            (ax, ay), (bx, by) = LOOP[k], LOOP[(k + 1) % 4]
+            goal = math.atan2(by - ay, bx - ax)
+            while se2.angle_diff(heading, goal) > 1e-6:
+                heading = se2.wrap_angle(heading + math.copysign(
+                    min(math.radians(30), se2.angle_diff(heading, goal)),
+                    se2.wrap_angle(goal - heading)))
+                poses.append((x, y, heading))
+            n = int(round(math.hypot(bx - ax, by - ay) / 0.25))
+            for i in range(1, n + 1):
+                x, y = ax + (bx - ax) * i / n, ay + (by - ay) * i / n
+                poses.append((x, y, heading))
+    return poses
+
+
+def _odometry(truth, bias: float, seed: int = 1):
+    rng = np.random.default_rng(seed)
+    odo = [truth[0]]
+    for a, b in zip(truth[:-1], truth[1:], strict=True):
+        d = list(se2.compose(se2.inverse(a), b))
+        if abs(d[0]) > 1e-9:
+            d[0] += rng.normal(0, 0.01)
+            d[2] += bias
+        odo.append(se2.compose(odo[-1], tuple(d)))
+    return odo
+
+
+def _stored() -> AbstractModel:
+    m = AbstractModel(DIM, model_id="a-e000", extractor="toy", scan=SCAN)
+    for k, pose in enumerate(tour(1)):
+        m.add_state(unit(k), pose, (), step=k, ranges=cast(ROOM_A, pose))
+    return m
+
+
+def _drive(bias: float, drift: DriftModel | None):
+    truth = tour(2)
+    odo = _odometry(truth, bias)
+    stored = _stored()
+    memory = Memory({"a-e000": stored}, threshold=0.05)
+    rel = Relocalizer(memory, RelocationConfig(drift=drift))
+    episode = AbstractModel(DIM, model_id="a-e001", extractor="toy", scan=SCAN)
+    for k, (p, w) in enumerate(zip(odo, truth, strict=True)):
+        # the first steps look like the stored tour's start; the rest match nothing
+        f = unit(k) if k < 6 else NO_MATCH
+        s = AbstractState(f, p, (), cast(ROOM_A, w))
+        episode.add_state(f, p, (), step=k, ranges=s.ranges)
+        rel.observe(k, s, SCAN)
+    return truth, episode, rel
+
+
+def test_a_drifting_episode_is_bent_onto_the_stored_model():
+    truth, episode, rel = _drive(math.radians(0.6), DriftModel())
+    assert rel.relocation is not None
+    r = rel.mergeable(episode)
+    assert r is not None and rel.correction is not None
+    assert rel.decisions["loop closure kept"] >= 3
+    assert rel.decisions["merged after loop closures"] == 1  # no one transform fitted
+    poses = rel.corrected_poses(episode, r.transform)
+    states = sorted(episode.states(), key=lambda s: episode.graph.nodes[s]["step"])
+    true = [truth[episode.graph.nodes[s]["step"]] for s in states]
+    g = episode.graph
+    rigid = [se2.compose(r.transform, (g.nodes[s]["x"], g.nodes[s]["y"], g.nodes[s]["theta"]))
+             for s in states]
+    bent = [se2.compose(r.transform, poses[s]) for s in states]
+    before, after = _errors(rigid, true), _errors(bent, true)
+    assert np.percentile(before, 95) > 0.3  # one transform cannot lay the whole episode
+    assert np.median(after) < 0.1 and np.percentile(after, 95) < 0.5 * np.percentile(before, 95)
+
+
+def test_without_a_drift_model_the_episode_stays_rigid():
+    _, episode, rel = _drive(math.radians(0.6), None)
+    rel.mergeable(episode)
+    assert rel.correction is None
+    assert rel.corrected_poses(episode, (0.0, 0.0, 0.0)) == {}
+    assert not any(k.startswith("loop closure") for k in rel.decisions)
+
+
+def test_loop_closures_do_not_let_a_look_alike_room_of_another_house_in():
+    """The wrong-house case of test_relocation, with drift correction on: the episode's copy of
+    room A gives loop closures, but its own narrow room still stands in house 1's open floor
+    once the episode is bent, so the merge stays refused."""
+    from tests.test_relocation import EAST_WALK, HOUSE_1, HOUSE_2, WALK, run
+
+    m = AbstractModel(DIM, model_id="h1-e000", extractor="toy", scan=SCAN)
+    for k, pose in enumerate(WALK + EAST_WALK):
+        m.add_state(unit(k), pose, (), step=k, ranges=cast(HOUSE_1, pose))
+    memory = Memory({"h1-e000": m}, threshold=0.05)
+    states = [AbstractState(NO_MATCH, pose, (), cast(HOUSE_2, pose)) for pose in EAST_WALK * 2]
+    states += [AbstractState(unit(k), pose, (), cast(HOUSE_2, pose))
+               for k, pose in enumerate(WALK)]
+    rel = Relocalizer(memory, RelocationConfig(recent_scans=8, drift=DriftModel(),
+                                               closure_window=4))
+    assert run(rel, states) is not None
+    assert rel.mergeable() is None and rel.correction is None
+    assert rel.final["h1-e000"].reason in ("geometry", "conflict")
+
+
+# --------------------------------------------------------------------------- the model's record
+def _closed(model: AbstractModel) -> AbstractModel:
+    s = sorted(model.states())
+    model.add_loop_closures([{"state": f"{model.model_id}/{s[0]}", "episode": 1, "kept": True},
+                             {"state": f"{model.model_id}/{s[-1]}", "episode": 1,
+                              "kept": False}])
+    return model
+
+
+def test_loop_closures_survive_save_load_and_merge(tmp_path):
+    from kgnav.memory.merge import merge
+
+    m = _closed(_model_with_objects())
+    m.add_loop_closures([{"state": "m/s0", "episode": 1, "kept": True}])  # already recorded
+    assert len(m.loop_closures) == 2
+    m.save(tmp_path / "m.graphml")
+    back = AbstractModel.load(tmp_path / "m.graphml")
+    assert back == m and back.loop_closures == m.loop_closures
+    other = AbstractModel(4, model_id="t", extractor="toy")
+    other.add_state(np.eye(4)[3], (9.0, 9.0, 0.0), step=0)
+    joined = merge(other, m, transform=(1.0, 0.0, 0.0))
+    assert joined.loop_closures == m.loop_closures
+    # the closures still name states of the joined model (through provenance)
+    assert all(joined.known_node(c["state"]) is not None for c in joined.loop_closures)
+
+
+@pytest.mark.parametrize("bad", ['{"a": 1}', '[{"state": "m/o1", "episode": 1, "kept": true}]',
+                                 '[{"state": "m/s1", "episode": "1", "kept": true}]',
+                                 '[{"state": "m/s1", "episode": 1, "kept": 1}]', "not json"])
+def test_a_file_with_bad_loop_closures_is_refused_in_one_line(tmp_path, bad):
+    import re
+    from xml.sax.saxutils import escape
+
+    from kgnav import ModelFileError
+
+    path = tmp_path / "m.graphml"
+    _closed(_model_with_objects()).save(path)
+    text = path.read_text()
+    key = re.search(r'<key id="(g[0-9]+)" for="graph" attr.name="loop_closures"', text).group(1)
+    text, n = re.subn(f'<data key="{key}">[^<]*</data>', f'<data key="{key}">{escape(bad)}</data>',
+                      text)
+    assert n == 1
+    path.write_text(text)
+    with pytest.raises(ModelFileError, match="loop_closures") as err:
+        AbstractModel.load(path)
+    assert "\n" not in str(err.value)
+
+
+def test_inspect_and_the_html_export_show_the_loop_closures(tmp_path):
+    from kgnav.memory import query
+    from kgnav.memory.html import build_network
+
+    m = _closed(_model_with_objects())
+    assert query.summary(m)["loop_closures"] == {"kept": 1, "rejected": 1}
+    assert query.summary(_model_with_objects())["loop_closures"] == {"kept": 0, "rejected": 0}
+    net = build_network(m, title="t")
+    marked = {n["id"]: n for n in net.nodes if n.get("shape") == "diamond"}
+    assert set(marked) == {"s0", "s2"}
+    assert "loop closure of episode 1: kept" in marked["s0"]["title"]
+    assert "rejected" in marked["s2"]["title"]
+    counts = dict(net.templateEnv.globals["kgnav"]["counts"])
+    assert counts["loop closures"] == 2
+    m.save(tmp_path / "m.graphml")
+    from tests.test_cli import run as cli_run
+    res = cli_run("inspect", tmp_path / "m.graphml")
+    assert res.returncode == 0 and "1 kept, 1 rejected" in res.stdout
+
+
+def test_an_episode_records_its_loop_closures_on_its_model():
+    """What the agent loop does after a corrected merge (kgnav.agent.loop): the closures that
+    placed states, by state, on the episode's model."""
+    _, episode, rel = _drive(math.radians(0.6), DriftModel())
+    r = rel.mergeable(episode)
+    closures = rel.closure_states(episode)
+    assert r is not None and len(closures) == len(rel.correction.kept) + len(
+        rel.correction.rejected)
+    assert all(episode.has_state(s) for s, _ in closures)
