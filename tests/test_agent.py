@@ -365,8 +365,8 @@ def test_goal_point_skips_excluded_and_rarely_seen(tiny):
 @given(st.floats(-5, 5), st.floats(-5, 5), st.floats(-math.pi + 1e-3, math.pi - 1e-3),
        st.integers(0, 10_000))
 def test_rigid_fit_recovers_a_transform(tx, ty, theta, seed):
-    from kgnav.agent.relocation import rigid_fit as _rigid_fit
     from kgnav.common import se2
+    from kgnav.common.se2 import fit_points as _rigid_fit
 
     src = np.random.default_rng(seed).uniform(-4, 4, (6, 2))
     dst = se2.apply_to_points((tx, ty, theta), src)

@@ -43,8 +43,8 @@ def test_rigid_fit_recovers_a_known_transform():
     th = 0.7
     R0 = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
     q = p @ R0.T + (2.0, -1.0)
-    R, t = fidelity.rigid_fit_2d(p, q)
-    assert np.allclose(R, R0) and np.allclose(t, (2.0, -1.0))
+    T = se2.fit_points(p, q)
+    assert np.allclose(T, (2.0, -1.0, th))
 
 
 def test_a_rigid_offset_is_no_error():

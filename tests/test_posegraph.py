@@ -314,3 +314,17 @@ def test_an_episode_records_its_loop_closures_on_its_model():
     assert r is not None and len(closures) == len(rel.correction.kept) + len(
         rel.correction.rejected)
     assert all(episode.has_state(s) for s, _ in closures)
+
+
+@pytest.mark.parametrize(("noise", "on", "drifts"), [("locobot", True, True),
+                                                     ("locobot", False, False),
+                                                     ("none", True, False)])
+def test_the_benchmark_corrects_drift_only_with_a_drifting_pose_sensor(noise, on, drifts):
+    from kgnav.agent.memory import Memory as _Memory
+    from kgnav.benchmark.runner import EvalConfig, _env, _make_agent
+    from kgnav.benchmark.variants import VARIANTS
+
+    cfg = EvalConfig(split="val-small", variants=("si",), noise=noise, drift_correction=on,
+                     workers=1)
+    agent = _make_agent(cfg, VARIANTS["si"], _env(cfg, 0), _Memory({}), "opencv-gist")
+    assert (agent.config.relocation.drift is not None) is drifts

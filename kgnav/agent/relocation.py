@@ -731,11 +731,11 @@ class Relocalizer:
         if len({p[4] for p in self._pairs}) < 3 or len(self._pairs) % 5:
             return
         pts = np.array([p[:4] for p in self._pairs], float)
-        new = rigid_fit(pts[:, :2], pts[:, 2:])
+        new = se2.fit_points(pts[:, :2], pts[:, 2:])
         res = np.hypot(*(se2.apply_to_points(new, pts[:, :2]) - pts[:, 2:]).T)
         keep = res <= max(0.5, 2.0 * float(np.median(res)))
         if keep.sum() >= 3:
-            new = rigid_fit(pts[keep, :2], pts[keep, 2:])
+            new = se2.fit_points(pts[keep, :2], pts[keep, 2:])
         at = r.at
         moved = math.dist(se2.apply_to_point(new, *at), se2.apply_to_point(r.transform, *at))
         if moved <= 1.5 and se2.angle_diff(new[2], r.transform[2]) <= math.radians(30):
@@ -780,13 +780,3 @@ def _spread(pts: np.ndarray) -> float:
     return float(np.sqrt(max(np.linalg.eigvalsh(np.cov(pts.T))[0], 0.0)))
 
 
-def rigid_fit(src: np.ndarray, dst: np.ndarray) -> tuple[float, float, float]:
-    """The SE(2) transform minimising squared distances from mapped ``src`` to ``dst``
-    (2-D Kabsch)."""
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    a, b = src - cs, dst - cd
-    theta = math.atan2(float((a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]).sum()),
-                       float((a * b).sum()))
-    c, s = math.cos(theta), math.sin(theta)
-    t = cd - np.array([c * cs[0] - s * cs[1], s * cs[0] + c * cs[1]])
-    return float(t[0]), float(t[1]), theta

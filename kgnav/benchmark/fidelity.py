@@ -18,9 +18,9 @@ created it, mapped to the world with ``frame``):
   error of the stored states. Each state's stored position (model frame) is paired with the
   true world position the agent had when the state was recorded (keyed by the state's
   creator in ``origin``, ``model_id/node_id``); each model is aligned to the truth by one
-  rigid 2-D fit (:func:`rigid_fit_2d`), and the residuals' median and 95th percentile (m)
-  are reported with the number of states. 0 with a perfect pose sensor and exact merges;
-  odometry drift and wrong merge transforms raise it.
+  rigid 2-D fit (:func:`kgnav.common.se2.fit_points`), and the residuals' median and 95th
+  percentile (m) are reported with the number of states. 0 with a perfect pose sensor and
+  exact merges; odometry drift and wrong merge transforms raise it.
 
 >>> from kgnav.sim.house import ObjectInstance
 >>> chair = ObjectInstance(1, "chair", 0, 0.0, 0.0, 0.5, 0.5, 0.0, 0.9, (0, 0, 0))
@@ -163,24 +163,6 @@ def pooled(per_house: dict[str, dict]) -> dict:
     }
 
 
-def rigid_fit_2d(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The rotation ``R`` (2×2) and translation ``t`` minimising ``sum |R p_i + t - q_i|^2``
-    (Kabsch/Umeyama without scale) for points ``p``, ``q`` of shape (n, 2), n >= 1.
-
-    >>> R, t = rigid_fit_2d(np.array([[0., 0], [1, 0]]), np.array([[1., 1], [1, 2]]))
-    >>> np.round(R @ [1, 0] + t, 6).tolist()
-    [1.0, 2.0]
-    """
-    p, q = np.asarray(p, np.float64), np.asarray(q, np.float64)
-    pc, qc = p.mean(0), q.mean(0)
-    a, b = p - pc, q - qc
-    theta = math.atan2(float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])),
-                       float(np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])))
-    c, s = math.cos(theta), math.sin(theta)
-    R = np.array([[c, -s], [s, c]])
-    return R, qc - R @ pc
-
-
 def pose_residuals(models: Iterable[AbstractModel],
                    truth: Mapping[str, tuple[float, float]]) -> np.ndarray:
     """Per stored state with a known true pose, the distance (m) between its stored position
@@ -199,8 +181,7 @@ def pose_residuals(models: Iterable[AbstractModel],
         if not p:
             continue
         p, q = np.array(p), np.array(q)
-        R, t = rigid_fit_2d(p, q)
-        out.append(np.linalg.norm(p @ R.T + t - q, axis=1))
+        out.append(np.linalg.norm(se2.apply_to_points(se2.fit_points(p, q), p) - q, axis=1))
     return np.concatenate(out) if out else np.zeros(0)
 
 

@@ -66,6 +66,23 @@ def apply_to_points(T: Pose, xy: np.ndarray) -> np.ndarray:
     return np.asarray(xy, dtype=float) @ R.T + np.array([tx, ty])
 
 
+def fit_points(src, dst) -> Pose:
+    """The transform ``T`` minimising the squared distances from ``apply_to_points(T, src)``
+    to ``dst`` (two ``(N, 2)`` arrays of paired points, N >= 1; 2-D Kabsch, no scale).
+
+    >>> fit_points(np.array([[0.0, 0.0], [1.0, 0.0]]), np.array([[1.0, 1.0], [1.0, 2.0]]))
+    (1.0, 1.0, 1.5707963267948966)
+    """
+    src, dst = np.asarray(src, dtype=float), np.asarray(dst, dtype=float)
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    a, b = src - cs, dst - cd
+    theta = math.atan2(float((a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]).sum()),
+                       float((a * b).sum()))
+    c, s = math.cos(theta), math.sin(theta)
+    t = cd - np.array([c * cs[0] - s * cs[1], s * cs[0] + c * cs[1]])
+    return float(t[0]), float(t[1]), theta
+
+
 def apply_to_pose(T: Pose, p: Pose) -> Pose:
     """Map a pose through ``T`` (same as ``compose(T, p)``)."""
     return compose(T, p)
