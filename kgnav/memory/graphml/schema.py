@@ -216,6 +216,17 @@ class Text(_String):
         return text
 
 
+def _json_list(text: str) -> list:
+    """``text`` parsed as a JSON list, or a ValueError that shows it."""
+    try:
+        value = json.loads(text)
+    except (ValueError, RecursionError):
+        raise ValueError(f"not JSON ({show(text)})") from None
+    if not isinstance(value, list):
+        raise ValueError(f"not a JSON list ({show(text)})")
+    return value
+
+
 @dataclass(frozen=True)
 class JsonList(_String):
     """A JSON list of integers (``item="int"``) or model ids (``item="id"``); held as the text."""
@@ -223,13 +234,7 @@ class JsonList(_String):
     item: str
 
     def parse(self, text: str, ctx) -> str:
-        try:
-            value = json.loads(text)
-        except (ValueError, RecursionError):
-            raise ValueError(f"not JSON ({show(text)})") from None
-        if not isinstance(value, list):
-            raise ValueError(f"not a JSON list ({show(text)})")
-        for x in value:
+        for x in _json_list(text):
             ok = (
                 type(x) is int and INT64[0] <= x <= INT64[1]
                 if self.item == "int"
@@ -247,13 +252,7 @@ class LoopClosures(_String):
     "kept": <bool>}`` each (:attr:`kgnav.memory.model.AbstractModel.loop_closures`)."""
 
     def parse(self, text: str, ctx) -> str:
-        try:
-            value = json.loads(text)
-        except (ValueError, RecursionError):
-            raise ValueError(f"not JSON ({show(text)})") from None
-        if not isinstance(value, list):
-            raise ValueError(f"not a JSON list ({show(text)})")
-        for x in value:
+        for x in _json_list(text):
             ok = (isinstance(x, dict) and set(x) == {"state", "episode", "kept"}
                   and isinstance(x["state"], str) and _STATE_ORIGIN.fullmatch(x["state"])
                   and type(x["episode"]) is int and INT64[0] <= x["episode"] <= INT64[1]
