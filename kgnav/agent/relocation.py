@@ -378,9 +378,10 @@ class Relocalizer:
                 return w
         return None
 
-    def _merge_scans(self) -> list:
+    def _merge_scans(self, scans=None) -> list:
+        """At most ``merge_scans`` of ``scans`` (default: the episode's), evenly spread."""
         c = self.config
-        scans = self._all
+        scans = self._all if scans is None else scans
         if len(scans) > c.merge_scans:
             scans = [scans[i] for i in np.linspace(0, len(scans) - 1, c.merge_scans).astype(int)]
         return scans
@@ -520,10 +521,8 @@ class Relocalizer:
         fix = self.close_loops(model_id, T)
         if fix is None:
             return rigid
-        scans = [(q, r, scan) for q, (_, r, scan) in zip(fix.poses, self._all, strict=True)]
-        if len(scans) > self.config.merge_scans:
-            pick = np.linspace(0, len(scans) - 1, self.config.merge_scans).astype(int)
-            scans = [scans[i] for i in pick]
+        scans = self._merge_scans([(q, r, scan) for q, (_, r, scan)
+                                   in zip(fix.poses, self._all, strict=True)])
         v = self.verify(model_id, (0.0, 0.0, 0.0), scans)
         if v.ok and self.config.unique and self.ambiguity(model_id, v, scans) is not None:
             v = Verdict(False, "ambiguous", v.transform, v.inliers, v.conflicts, v.points)
