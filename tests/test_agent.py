@@ -21,6 +21,8 @@ from kgnav.agent.policy import FrontierPolicy, cooccurrence, frontiers, make_pol
 from kgnav.agent.segmentation import make_segmenter
 from kgnav.agent.state_creator import StateCreator
 from kgnav.errors import KgnavError
+from kgnav.memory.evidence import MISS_RANGE
+from kgnav.memory.geometry import ScanGeometry, occupancy_from_scans
 from kgnav.memory.model import ACTIONS
 from kgnav.sim import ObjectNavEnv
 
@@ -261,6 +263,64 @@ def test_when_the_memory_leaves_no_frontier_the_agent_looks_again_where_it_has_n
     pol = FrontierPolicy()
     cell = pol.select(m, (0.0, 0.0, 0.0), "chair", FMMPlanner())
     assert cell is not None and frontiers(m, prior=False)[0][cell] > 0
+
+
+def test_the_map_marks_as_searched_only_what_it_saw_from_close_range():
+    """A frame looking down an empty 5 m corridor explores all of it but searches only the
+    first 3 m (where a miss counts against an object); a remembered model's close views seed
+    ``prior_searched`` the same way, and a refuted memory takes them back."""
+    mb = MapBuilder(Camera(), size=240)
+    m = mb.update(np.full((120, 160), 5.0, np.float32), (0.0, 0.0, 0.0))
+    for x, searched in ((1.0, 1), (2.5, 1), (3.5, 0), (4.5, 0)):
+        assert m.explored[m.to_cell(x, 0.0)] == 1
+        assert m.searched[m.to_cell(x, 0.0)] == searched, x
+    assert m.searched_any().sum() == m.searched.sum()  # no memory yet
+    scan = ScanGeometry(79.0, 40, 5.0)
+    grid = occupancy_from_scans(scan, [(0.0, 0.0, math.pi)], [np.full(40, 5.0)],
+                                near_range=MISS_RANGE)
+    assert grid.searched[grid.cell(-2.0, 0.0)] and not grid.searched[grid.cell(-4.0, 0.0)]
+    assert grid.known_free[grid.cell(-4.0, 0.0)]
+    assert not occupancy_from_scans(scan, [(0.0, 0.0, 0.0)], [np.full(40, 5.0)]).searched.any()
+    mb.seed(grid, (0.0, 0.0, 0.0))
+    assert m.prior_searched[m.to_cell(-2.0, 0.0)] and not m.prior_searched[m.to_cell(-4.0, 0.0)]
+    assert m.prior_explored[m.to_cell(-4.0, 0.0)]
+    m.cover(-50, 300, -50, 300)  # growing keeps every layer aligned
+    assert m.prior_searched.shape == m.searched.shape == m.explored.shape
+    assert m.searched[m.to_cell(2.5, 0.0)] and m.prior_searched[m.to_cell(-2.0, 0.0)]
+    m.forget_prior()
+    assert m.prior_searched is None and m.prior_explored is None
+
+
+def test_with_a_memory_that_saw_everything_the_policy_searches_where_it_looked_only_from_afar():
+    """The memory has seen the whole map, but searched (from close range) only its west half:
+    the goal is not believed in it, so the next frontier is one into the east half
+    (``unsearched``), not one of the agent's own frontiers; without ``search_memory``, or with
+    the memory searched everywhere, the agent's own frontiers (``episode``)."""
+    def world():
+        m = MapBuilder(Camera(), size=100).reset()
+        m.explored[45:55, 45:55] = m.searched[45:55, 45:55] = 1
+        m.prior_explored = np.ones_like(m.explored)
+        m.prior_obstacle = np.zeros_like(m.explored)
+        m.prior_searched = np.zeros_like(m.explored)
+        m.prior_searched[:, :55] = 1  # west of x = 0.25 m
+        return m
+
+    m = world()
+    pol = FrontierPolicy()
+    cell = pol.select(m, (0.0, 0.0, 0.0), "chair", FMMPlanner())
+    assert pol.source_ == "unsearched"
+    assert cell is not None and m.to_xy(*cell)[0] > 0.0 and m.searched_any()[cell]
+    assert frontiers(m, searched=True)[0][cell] > 0
+    off = FrontierPolicy(search_memory=False)
+    cell = off.select(world(), (0.0, 0.0, 0.0), "chair", FMMPlanner())
+    assert off.source_ == "episode" and cell is not None
+    m = world()
+    m.prior_searched[:] = 1
+    pol.select(m, (0.0, 0.0, 0.0), "chair", FMMPlanner())
+    assert pol.source_ == "episode"
+    m.prior_explored = m.prior_obstacle = m.prior_searched = None  # no memory at all
+    pol.select(m, (0.0, 0.0, 0.0), "chair", FMMPlanner())
+    assert pol.source_ == "unobserved"
 
 
 def test_policy_registry_and_cooccurrence(tiny):

@@ -20,6 +20,7 @@ from kgnav.agent.loop import (
     ObjectNavAgent,
 )
 from kgnav.agent.memory import Memory
+from kgnav.agent.policy import FRONTIER_SOURCES
 from kgnav.agent.segmentation import make_segmenter
 from kgnav.benchmark import fidelity
 from kgnav.benchmark.runner import EvalConfig, _GroundTruth, goal_in_memory, run_eval, summarize
@@ -278,7 +279,11 @@ def test_a_tiny_run_records_the_split_and_summarises_it(tmp_path):
         assert {"goal_in_memory", "memory_goal_reason"} <= r.keys()
         if r["variant"] != "sp":
             assert r["goal_in_memory"] is None and r["memory_goal_reason"] is None
+            assert "frontier_sources" not in r  # no memory, nothing to prefer
             continue
+        # every exploration target of a memory agent says where the policy found it
+        assert set(r["frontier_sources"]) <= set(FRONTIER_SOURCES)
+        assert all(isinstance(n, int) and n > 0 for n in r["frontier_sources"].values())
         assert isinstance(r["goal_in_memory"], bool)  # kgnav's houses give the ground truth
         explain = r["goal_in_memory"] and r["memory_goal_step"] is None
         assert (r["memory_goal_reason"] in MEMORY_GOAL_REASONS) if explain \
@@ -296,6 +301,12 @@ def test_a_tiny_run_records_the_split_and_summarises_it(tmp_path):
     assert len(sp["success_by_episode_index"]) == 2
     assert all(0.0 <= v <= 1.0 for v in sp["success_by_episode_index"])
     assert sp["memory_goal_reasons"].keys() == set(MEMORY_GOAL_REASONS)
+    totals = {}
+    for r in recs:
+        if r["variant"] == "sp" and r["goal_in_memory"] is False:
+            for k, n in r["frontier_sources"].items():
+                totals[k] = totals.get(k, 0) + n
+    assert sp["frontier_sources_goal_not_in_memory"] == totals
     assert sp["goal_not_in_memory_vs_ans"]["success"]["pairs"] == parts[1]["episodes"]
     assert "goal_in_memory" not in summary["ans"] and "goal_in_memory" not in summary["oracle"]
     assert len(summary["oracle"]["success_by_episode_index"]) == 2

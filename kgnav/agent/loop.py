@@ -190,6 +190,8 @@ class EpisodeLog:
     stop_reason: str | None = None
     undone: list[Relocation] = field(default_factory=list)  # relocations landmarks refuted
     periods: list[MemoryPeriod] = field(default_factory=list)  # one per relocation accepted
+    frontier_sources: dict[str, int] = field(default_factory=dict)  # exploration targets by
+    # where the policy found them (FRONTIER_SOURCES; "policy": a policy that does not say)
 
 
 class ObjectNavAgent:
@@ -373,10 +375,7 @@ class ObjectNavAgent:
         self._prev = (self._prev[0], self._prev[0]) if self._prev else None
         self.log_.rejected = []  # object ids of the merged model, meaningless now
         self._target = None
-        m = self.map_
-        if m.prior_obstacle is not None:  # forget what the wrong memory said of the place
-            m.prior_obstacle = m.prior_explored = None
-            m.generation += 1
+        self.map_.forget_prior()
 
     def _note_scan(self, sid: str) -> None:
         d = self.current_.graph.nodes[sid]
@@ -596,6 +595,10 @@ class ObjectNavAgent:
             if cell is None:
                 self._target = None
                 return None
+            if self.memory is not None:
+                src = getattr(self.policy, "source_", None) or "policy"
+                counts = self.log_.frontier_sources
+                counts[src] = counts.get(src, 0) + 1
             return self._set_target(Target("explore", self.map_.to_xy(*cell)))
         return cur
 

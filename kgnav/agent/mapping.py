@@ -14,9 +14,12 @@ Channels:
 * ``semantic[c]``: per class, how many segmented pixels (subsampled) landed in the cell: an
   evidence count, fused over time like the other channels;
 * ``bumped``: cells where the agent collided with something the map missed (the planner's);
-* ``prior_obstacle`` / ``prior_explored`` (after :meth:`MapBuilder.seed`): what a remembered
-  Abstract Model knows of the place, mapped with a relocation; the agent's own view overrides
-  it (a cell it sees free loses its remembered obstacle).
+* ``searched``: the part of ``explored`` seen from at most ``search_range`` (3 m, as far as a
+  miss counts against an object, :data:`kgnav.memory.evidence.MISS_RANGE`), where the agent
+  would have found an object; farther, a segmenter misses much;
+* ``prior_obstacle`` / ``prior_explored`` / ``prior_searched`` (after :meth:`MapBuilder.seed`):
+  what a remembered Abstract Model knows of the place, mapped with a relocation; the agent's own
+  view overrides it (a cell it sees free loses its remembered obstacle).
 
 Rows are y, columns x: cell ``(i, j)`` has centre ``((j - oj + 0.5) * res, (i - oi + 0.5) * res)``
 where ``origin = (oi, oj)`` is the cell holding the episode start. Growing shifts ``origin`` and
@@ -44,6 +47,7 @@ import numpy as np
 
 from kgnav.agent.camera import Camera
 from kgnav.common.classes import OBJECT_CLASSES
+from kgnav.memory.evidence import MISS_RANGE
 from kgnav.memory.geometry import OccupancyGrid
 
 
@@ -61,12 +65,16 @@ class EpisodeMap:
     generation: int = 0  # bumped on every growth or seeding: what others derived is stale
     prior_obstacle: np.ndarray | None = None  # uint8 0/1: obstacles a memory knows of
     prior_explored: np.ndarray | None = None  # uint8 0/1: space a memory has seen
+    searched: np.ndarray | None = None  # uint8 0/1: explored from within the search range
+    prior_searched: np.ndarray | None = None  # uint8 0/1: ... by a memory
 
     def __post_init__(self):
         if self.origin is None:
             self.origin = (self.obstacle.shape[0] // 2, self.obstacle.shape[1] // 2)
         if self.bumped is None:
             self.bumped = np.zeros_like(self.obstacle)
+        if self.searched is None:
+            self.searched = np.zeros_like(self.obstacle)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -112,6 +120,19 @@ class EpisodeMap:
             return self.explored[i0:i1, j0:j1]
         return self.explored[i0:i1, j0:j1] | self.prior_explored[i0:i1, j0:j1]
 
+    def searched_any(self, crop=None) -> np.ndarray:
+        """uint8 cells searched by the agent or by a remembered model (over ``crop``)."""
+        i0, i1, j0, j1 = crop if crop is not None else (0, self.shape[0], 0, self.shape[1])
+        if self.prior_searched is None:
+            return self.searched[i0:i1, j0:j1]
+        return self.searched[i0:i1, j0:j1] | self.prior_searched[i0:i1, j0:j1]
+
+    def forget_prior(self) -> None:
+        """Drop what a memory said of the place (a relocation refuted)."""
+        if self.prior_obstacle is not None:
+            self.prior_obstacle = self.prior_explored = self.prior_searched = None
+            self.generation += 1
+
     def class_mask(self, cls: str, min_count: int = 1) -> np.ndarray:
         """Cells with at least ``min_count`` evidence of class ``cls``."""
         return self.semantic[self.classes.index(cls)] >= min_count
@@ -130,9 +151,11 @@ class EpisodeMap:
         self.obstacle = np.pad(self.obstacle, pad)
         self.explored = np.pad(self.explored, pad)
         self.bumped = np.pad(self.bumped, pad)
+        self.searched = np.pad(self.searched, pad)
         if self.prior_obstacle is not None:
             self.prior_obstacle = np.pad(self.prior_obstacle, pad)
             self.prior_explored = np.pad(self.prior_explored, pad)
+            self.prior_searched = np.pad(self.prior_searched, pad)
         self.semantic = np.pad(self.semantic, [(0, 0), *pad])
         self.origin = (self.origin[0] + pad[0][0], self.origin[1] + pad[1][0])
         self.generation += 1
@@ -169,6 +192,7 @@ class MapBuilder:
         stride: int = 2,
         classes: tuple[str, ...] = OBJECT_CLASSES,
         max_size: int = 4000,
+        search_range: float = MISS_RANGE,
     ):
         if size < 8 or resolution <= 0 or max_size < size:
             raise ValueError(f"bad map geometry: size {size}, resolution {resolution}, "
@@ -180,6 +204,7 @@ class MapBuilder:
         self.stride = max(1, int(stride))
         self.classes = tuple(classes)
         self.max_size = int(max_size)
+        self.search_range = float(search_range)
         self.map_: EpisodeMap | None = None
 
     def reset(self) -> EpisodeMap:
@@ -235,6 +260,13 @@ class MapBuilder:
             m.explored[i0:i1, j0:j1] |= fan
             if m.prior_obstacle is not None:
                 m.prior_obstacle[i0:i1, j0:j1] &= 1 - fan
+            # the near part of the fan, through its end (what ends a column may be the object)
+            near = np.minimum(col_free + 2 * self.resolution, np.float32(self.search_range))
+            si, sj = self._cells(pose, np.concatenate([[0.0], near]),
+                                 np.concatenate([[0.0], -near * cam.ray_right]))
+            fan[:] = 0
+            cv2.fillPoly(fan, [np.stack([sj - j0, si - i0], axis=1).astype(np.int32)], 1)
+            m.searched[i0:i1, j0:j1] |= fan
 
         # obstacles
         if blocking.any():
@@ -282,11 +314,15 @@ class MapBuilder:
         free = grid.known_free.astype(np.uint8)
         w_obst = cv2.warpAffine(obst, M, size, flags=flags, borderValue=0)
         w_free = cv2.warpAffine(free, M, size, flags=flags, borderValue=0)
+        w_near = cv2.warpAffine(grid.searched.astype(np.uint8), M, size, flags=flags,
+                                borderValue=0)
         if m.prior_obstacle is None:
             m.prior_obstacle = np.zeros_like(m.obstacle)
             m.prior_explored = np.zeros_like(m.explored)
+            m.prior_searched = np.zeros_like(m.explored)
         seen_free = m.explored[i0:i1, j0:j1] & (1 - m.obstacle[i0:i1, j0:j1])
         m.prior_explored[i0:i1, j0:j1] |= w_free | w_obst
+        m.prior_searched[i0:i1, j0:j1] |= w_near
         m.prior_obstacle[i0:i1, j0:j1] |= w_obst & (1 - seen_free)
         m.generation += 1  # planners must replan with what is now known
         return m

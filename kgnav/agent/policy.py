@@ -54,17 +54,22 @@ def make_policy(name: str, **params) -> GlobalPolicy:
     return REGISTRY.get(name)(**params)
 
 
-def frontiers(m: EpisodeMap, min_cells: int = 6, prior: bool = True
+def frontiers(m: EpisodeMap, min_cells: int = 6, prior: bool = True, searched: bool = False
               ) -> tuple[np.ndarray, np.ndarray]:
     """Frontier clusters: (label image, cell count per label; label 0 is "not a frontier").
 
     A frontier cell is known (seen by the agent, or, with ``prior``, by a remembered model
-    mapped in after a relocation), not an obstacle, and touches an unknown cell.
+    mapped in after a relocation), not an obstacle, and touches an unknown cell. With
+    ``searched``, "known" is "searched" (seen from within the search range by the agent or a
+    remembered model, :meth:`EpisodeMap.searched_any`) and an obstacle is never the unknown
+    side: the frontiers of the free space nobody has looked at from close enough to find an
+    object in it.
     """
-    known = m.known(prior)
-    free = (known > 0) & (m.blocked(prior=prior) == 0)
-    unknown = (known == 0).astype(np.uint8)
-    near_unknown = cv2.dilate(unknown, np.ones((3, 3), np.uint8)) > 0
+    blocked = m.blocked(prior=prior) > 0
+    known = m.searched_any() if searched else m.known(prior)
+    free = (known > 0) & ~blocked
+    unknown = (known == 0) & ~blocked if searched else (known == 0)
+    near_unknown = cv2.dilate(unknown.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     front = (free & near_unknown).astype(np.uint8)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(front, connectivity=8)
     sizes = stats[:, cv2.CC_STAT_AREA].copy()
@@ -74,6 +79,21 @@ def frontiers(m: EpisodeMap, min_cells: int = 6, prior: bool = True
         lab[small[lab]] = 0
         sizes[small] = 0
     return lab, sizes
+
+
+#: Where a frontier target came from (:attr:`FrontierPolicy.source_`): beside space neither
+#: this episode nor the relocated memory has seen; beside space seen, but only from farther
+#: than a search reaches (the goal is not believed in memory: look where it could have been
+#: missed); this episode's own frontiers (the memory searched everywhere it can reach).
+FRONTIER_SOURCES = ("unobserved", "unsearched", "episode")
+
+
+def _beside_known(m: EpisodeMap, cell: tuple[int, int]) -> bool:
+    """Whether every cell around ``cell`` was seen (by the agent or a memory): a frontier of
+    unsearched, not of unseen, space."""
+    i, j = cell
+    crop = (max(i - 1, 0), i + 2, max(j - 1, 0), j + 2)
+    return bool(m.known(True, crop).all())
 
 
 @register_policy("frontier")
@@ -88,10 +108,12 @@ class FrontierPolicy:
     name = "frontier"
 
     def __init__(self, size_weight: float = 0.01, min_distance: float = 1.0,
-                 min_cells: int = 6):
+                 min_cells: int = 6, search_memory: bool = True):
         self.size_weight = float(size_weight)
         self.min_distance = float(min_distance)
         self.min_cells = int(min_cells)
+        self.search_memory = bool(search_memory)
+        self.source_: str | None = None
 
     def reset(self, seed: int) -> None:
         pass
@@ -103,17 +125,28 @@ class FrontierPolicy:
 
     def select(self, m: EpisodeMap, pose, goal_class: str, planner: FMMPlanner
                ) -> tuple[int, int] | None:
-        """The frontier cell to explore next; when a remembered model's map leaves none,
-        the frontiers of what the agent itself has seen: the memory knows the place, but the
-        goal was not found in it, so look again where this episode has not."""
-        cell = self._select(m, pose, goal_class, planner, prior=True)
-        if cell is None and m.prior_explored is not None:
-            cell = self._select(m, pose, goal_class, planner, prior=False)
-        return cell
+        """The frontier cell to explore next; :attr:`source_` says which kind
+        (:data:`FRONTIER_SOURCES`). Without a remembered map: the frontier of what the agent
+        has seen. With one (after a relocation): the frontier of the space nobody has searched
+        from close range (with ``search_memory``; the frontier of the space nobody has seen
+        without it), then, when the memory leaves none, the frontiers of what the agent itself
+        has seen: the memory knows the place, but the goal was not found in it, so look again
+        where this episode has not."""
+        if m.prior_explored is None:
+            self.source_ = "unobserved"
+            return self._select(m, pose, goal_class, planner, prior=True)
+        cell = self._select(m, pose, goal_class, planner, prior=True,
+                            searched=self.search_memory)
+        if cell is not None:
+            self.source_ = ("unsearched" if self.search_memory and _beside_known(m, cell)
+                            else "unobserved")
+            return cell
+        self.source_ = "episode"
+        return self._select(m, pose, goal_class, planner, prior=False)
 
     def _select(self, m: EpisodeMap, pose, goal_class: str, planner: FMMPlanner,
-                prior: bool) -> tuple[int, int] | None:
-        lab, sizes = frontiers(m, self.min_cells, prior)
+                prior: bool, searched: bool = False) -> tuple[int, int] | None:
+        lab, sizes = frontiers(m, self.min_cells, prior, searched)
         if not sizes.any():
             return None
         agent = m.to_cell(pose[0], pose[1])
@@ -160,8 +193,9 @@ class SemanticFrontierPolicy(FrontierPolicy):
     name = "semantic"
 
     def __init__(self, size_weight: float = 0.01, min_distance: float = 1.0,
-                 min_cells: int = 6, weight: float = 4.0, radius: float = 2.0):
-        super().__init__(size_weight, min_distance, min_cells)
+                 min_cells: int = 6, weight: float = 4.0, radius: float = 2.0,
+                 search_memory: bool = True):
+        super().__init__(size_weight, min_distance, min_cells, search_memory)
         self.weight = float(weight)
         self.radius = float(radius)
         self.cooccurrence_: dict[str, dict[str, float]] = {}

@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from kgnav.common import se2
+from kgnav.memory.evidence import MISS_RANGE
 from kgnav.memory.geometry import OccupancyGrid, occupancy_from_scans
 from kgnav.memory.posegraph import Anchor, Correction, DriftModel, correct
 
@@ -172,7 +173,8 @@ class StoredGeometry:
                 ranges.append(d["ranges"])
         if not poses:
             return None
-        return cls(occupancy_from_scans(scan, poses, ranges))
+        # near: what the model searched for objects, as far as its evidence counts misses
+        return cls(occupancy_from_scans(scan, poses, ranges, near_range=MISS_RANGE))
 
 
 class Relocalizer:

@@ -436,6 +436,9 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     record["goal_in_memory"] = held
     record["memory_goal_reason"] = (agent.memory_goal_reason()
                                     if held and record.get("memory_goal_step") is None else None)
+    if not variant.oracle and agent.memory is not None:
+        # which frontiers exploration took (kgnav.agent.policy.FRONTIER_SOURCES)
+        record["frontier_sources"] = dict(agent.log_.frontier_sources)
     if not variant.oracle and agent.log_.undone:
         record["undone"] = [_relocation_fields(gt, u) for u in agent.log_.undone]
     if reloc is not None:
@@ -1011,9 +1014,15 @@ def where_lost(recs: list[dict]) -> dict:
     held = [r for r in recs if r.get("goal_in_memory") is True]
     missing = [r for r in recs if r.get("goal_in_memory") is False]
     reasons = Counter(r.get("memory_goal_reason") for r in held)
+    sources: Counter = Counter()
+    for r in missing:
+        sources.update(r.get("frontier_sources") or {})
     return {"goal_in_memory": _part(held), "goal_not_in_memory": _part(missing),
             "memory_goal_headed": sum(r.get("memory_goal_step") is not None for r in held),
-            "memory_goal_reasons": {k: reasons[k] for k in MEMORY_GOAL_REASONS}}
+            "memory_goal_reasons": {k: reasons[k] for k in MEMORY_GOAL_REASONS},
+            # where the goal-not-in-memory episodes explored: beside unseen space, space seen
+            # only from afar, or the episode's own frontiers
+            "frontier_sources_goal_not_in_memory": dict(sorted(sources.items()))}
 
 
 def _part(recs: list[dict]) -> dict:

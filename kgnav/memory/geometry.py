@@ -128,6 +128,16 @@ class OccupancyGrid:
     x0: float
     y0: float
     resolution: float
+    near: np.ndarray | None = None  # uint16: profiles that saw the cell within ``near_range``
+    # (:func:`occupancy_from_scans`); None when not asked for
+
+    @property
+    def searched(self) -> np.ndarray:
+        """Cells some profile saw from close enough to find an object there (``near`` > 0;
+        all False without ``near``)."""
+        if self.near is None:
+            return np.zeros(self.free.shape, bool)
+        return self.near > 0
 
     @property
     def obstacle(self) -> np.ndarray:
@@ -154,12 +164,18 @@ class OccupancyGrid:
 
 
 def occupancy_from_scans(scan: ScanGeometry, poses, ranges, resolution: float = 0.05,
-                         pad: float = 0.5) -> OccupancyGrid:
-    """Rasterise range profiles taken at ``poses`` (one frame) into an :class:`OccupancyGrid`."""
+                         pad: float = 0.5, near_range: float | None = None) -> OccupancyGrid:
+    """Rasterise range profiles taken at ``poses`` (one frame) into an :class:`OccupancyGrid`.
+
+    With ``near_range`` (m) the grid also counts, in ``near``, the profiles that saw each cell
+    from at most that far: the part of the free space, and the obstacles ending it, that a
+    segmenter would have searched for objects (an object is an obstacle, so the end point of a
+    bin is counted too)."""
     poses = [tuple(float(v) for v in p) for p in poses]
     if not poses:
-        return OccupancyGrid(np.zeros((1, 1), np.uint16), np.zeros((1, 1), np.uint16), 0.0, 0.0,
-                             resolution)
+        z = np.zeros((1, 1), np.uint16)
+        return OccupancyGrid(z, z.copy(), 0.0, 0.0, resolution,
+                             None if near_range is None else z.copy())
     xy = np.array([p[:2] for p in poses])
     reach = scan.max_range + pad  # (hits beyond, at the edges of the view, are dropped below)
     x0, y0 = xy.min(axis=0) - reach
@@ -168,6 +184,7 @@ def occupancy_from_scans(scan: ScanGeometry, poses, ranges, resolution: float = 
     h = int(math.ceil((y1 - y0) / resolution))
     free = np.zeros((h, w), np.uint16)
     hits = np.zeros((h, w), np.uint16)
+    near = None if near_range is None else np.zeros((h, w), np.uint16)
     one = np.zeros((h, w), np.uint8)
     k = 1.0 / resolution
     for pose, r in zip(poses, ranges, strict=True):
@@ -175,18 +192,29 @@ def occupancy_from_scans(scan: ScanGeometry, poses, ranges, resolution: float = 
         # value must not reach outside the grid)
         r = np.nan_to_num(np.asarray(r, np.float64), nan=scan.max_range, posinf=scan.max_range)
         r = np.clip(r, 0.0, scan.max_range)
-        poly = scan.fan(pose, r)
-        cells = np.floor((poly - (x0, y0)) * k).astype(np.int32)
-        i0, j0 = max(int(cells[:, 1].min()), 0), max(int(cells[:, 0].min()), 0)
-        i1, j1 = min(int(cells[:, 1].max()) + 1, h), min(int(cells[:, 0].max()) + 1, w)
-        if i0 < i1 and j0 < j1:
-            sub = one[i0:i1, j0:j1]
-            sub[:] = 0
-            cv2.fillPoly(sub, [cells - (j0, i0)], 1)
-            free[i0:i1, j0:j1] += sub
+        _paint(free, one, scan.fan(pose, r), x0, y0, k)
+        if near is not None:
+            # up to and just past the end point (what ends a bin may be the object), capped
+            _paint(near, one, scan.fan(pose, np.minimum(r + _FREE_MARGIN, near_range), 0.0),
+                   x0, y0, k)
         end = np.floor((scan.endpoints(pose, r) - (x0, y0)) * k).astype(np.int64)
         end = end[(end[:, 0] >= 0) & (end[:, 0] < w) & (end[:, 1] >= 0) & (end[:, 1] < h)]
         if len(end):
             flat = np.unique(end[:, 1] * w + end[:, 0])
             hits.reshape(-1)[flat] += 1
-    return OccupancyGrid(free, hits, float(x0), float(y0), resolution)
+    return OccupancyGrid(free, hits, float(x0), float(y0), resolution, near)
+
+
+def _paint(count: np.ndarray, scratch: np.ndarray, poly: np.ndarray, x0: float, y0: float,
+           k: float) -> None:
+    """Add 1 to ``count`` over the polygon ``poly`` (points in metres; ``scratch``: a uint8
+    array of the same shape, overwritten)."""
+    h, w = count.shape
+    cells = np.floor((poly - (x0, y0)) * k).astype(np.int32)
+    i0, j0 = max(int(cells[:, 1].min()), 0), max(int(cells[:, 0].min()), 0)
+    i1, j1 = min(int(cells[:, 1].max()) + 1, h), min(int(cells[:, 0].max()) + 1, w)
+    if i0 < i1 and j0 < j1:
+        sub = scratch[i0:i1, j0:j1]
+        sub[:] = 0
+        cv2.fillPoly(sub, [cells - (j0, i0)], 1)
+        count[i0:i1, j0:j1] += sub
