@@ -28,12 +28,14 @@ import warnings
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import NamedTuple
+from typing import BinaryIO, NamedTuple
 
 import numpy as np
 
 from kgnav.errors import FeatureDimError, KgnavError
+from kgnav.memory.index_file import Blob, IndexReader, write_index
 from kgnav.memory.model import AbstractModel
+from kgnav.memory.vector_table import VectorTable, unit_rows
 
 
 class Match(NamedTuple):
@@ -42,47 +44,6 @@ class Match(NamedTuple):
     model_id: str
     state_id: str
     distance: float
-
-
-class VectorTable:
-    """Unit-norm feature rows in a growable buffer, with an alive mask for replaced models."""
-
-    def __init__(self, dim: int, capacity: int = 0):
-        self.dim = dim
-        self.n = 0
-        # sized up front when the caller knows the count: growing by doubling would hold the
-        # old and the new buffer at once (up to 3x the features) during the copy
-        self._buf = np.empty((capacity, dim), dtype=np.float32)
-        self._alive = np.zeros(capacity, dtype=bool)
-
-    @property
-    def vectors(self) -> np.ndarray:
-        return self._buf[: self.n]
-
-    @property
-    def alive(self) -> np.ndarray:
-        return self._alive[: self.n]
-
-    def append(self, rows: np.ndarray) -> int:
-        start, need = self.n, self.n + len(rows)
-        if need > len(self._buf):
-            cap = max(need, 2 * len(self._buf), 1024)
-            buf = np.empty((cap, self.dim), dtype=np.float32)
-            buf[:start] = self._buf[:start]
-            alive = np.zeros(cap, dtype=bool)
-            alive[:start] = self._alive[:start]
-            self._buf, self._alive = buf, alive
-        self._buf[start:need] = rows
-        self._alive[start:need] = True
-        self.n = need
-        return start
-
-
-def unit_rows(x: np.ndarray) -> np.ndarray:
-    """Rows scaled to unit L2 norm (zero rows stay zero), as float32."""
-    x = np.asarray(x, dtype=np.float32)
-    norms = np.linalg.norm(x, axis=-1, keepdims=True)
-    return x / np.maximum(norms, 1e-12)
 
 
 BACKENDS: dict[str, Callable[..., SearchBackend]] = {}
@@ -101,15 +62,21 @@ def register_backend(name: str):
 class SearchBackend:
     """Proposes candidate rows for a query; the relocator re-ranks them exactly."""
 
+    #: Whether every query reads every row: such a backend fits with its rows in memory,
+    #: where one that re-ranks a few rows a query can leave them on disk.
+    scans_all = False
+
     def rebuild(self, table: VectorTable) -> None:  # pragma: no cover - interface
         """All rows changed (fit or compaction)."""
 
-    def state(self) -> dict[str, np.ndarray]:
-        """What :meth:`restore` needs to skip a rebuild, as arrays (saved with the index)."""
+    def state(self) -> dict[str, np.ndarray | Blob]:
+        """What :meth:`restore` needs to skip a rebuild, saved with the index: arrays, or
+        :class:`~kgnav.memory.index_file.Blob` members the backend streams itself."""
         return {}
 
-    def restore(self, table: VectorTable, state: dict[str, np.ndarray]) -> None:
-        """Take back :meth:`state` for ``table``; rebuild when it is missing or unusable."""
+    def restore(self, table: VectorTable, state: dict[str, np.ndarray | BinaryIO]) -> None:
+        """Take back :meth:`state` for ``table`` (a blob comes back as a binary stream);
+        rebuild when it is missing or unusable."""
         self.rebuild(table)
 
     def added(self, table: VectorTable, start: int) -> None:  # pragma: no cover - interface
@@ -122,6 +89,8 @@ class SearchBackend:
 @register_backend("exact")
 class ExactBackend(SearchBackend):
     """Brute force over every alive row: exact, O(n·d) per query."""
+
+    scans_all = True
 
     def candidates(self, table: VectorTable, q: np.ndarray, k: int) -> np.ndarray:
         sims = table.vectors @ q
@@ -190,27 +159,39 @@ class HNSWBackend(SearchBackend):
         if table.n < self.min_rows:
             return
         from sklearn.decomposition import PCA  # only large tables pay for the import
-        x = table.vectors
         if self.pca_dim < table.dim:
             rng = np.random.default_rng(self.seed)
             take = np.sort(rng.choice(table.n, min(table.n, self.train_size), replace=False))
-            pca = PCA(self.pca_dim, svd_solver="randomized", random_state=self.seed).fit(x[take])
+            pca = PCA(self.pca_dim, svd_solver="randomized", random_state=self.seed).fit(
+                table.take(take))
             self._pca = (pca.mean_.astype(np.float32), pca.components_.astype(np.float32))
         dim = self.pca_dim if self._pca is not None else table.dim
-        self._index = self._faiss.IndexHNSWFlat(dim, self.M)
-        self._index.hnsw.efConstruction = self.ef_construction
-        for start in range(0, table.n, 65536):  # bounded temporaries on large tables
-            self._index.add(self._project(x[start : start + 65536]))
+        index = self._faiss.IndexHNSWFlat(dim, self.M)
+        index.hnsw.efConstruction = self.ef_construction
+        # faiss grows its arrays batch by batch (a std::vector doubling: up to 2x the graph,
+        # 3x while it copies); sized once here, a resize back to 0 keeps the capacity
+        codes = self._faiss.downcast_index(index.storage).codes
+        links = index.hnsw.neighbors
+        codes.resize(table.n * dim * 4)
+        codes.resize(0)
+        links.resize(table.n * (2 * self.M + 2))  # level 0's 2M links, ~M/(M-1) above
+        links.resize(0)
+        for _, rows in table.chunks():  # read in chunks: bounded temporaries, rows on disk
+            index.add(self._project(rows))
+        self._index = index
 
-    def state(self) -> dict[str, np.ndarray]:
+    def state(self) -> dict[str, np.ndarray | Blob]:
         out = {"trained_at": np.array(self._trained_at, dtype=np.int64)}
         if self._pca is not None:
             out["pca_mean"], out["pca_components"] = self._pca
         if self._index is not None:
-            out["graph"] = self._faiss.serialize_index(self._index)
+            # streamed into the file: serialize_index would hold two more copies of the graph
+            index, faiss = self._index, self._faiss
+            out["graph"] = Blob(lambda fh: faiss.write_index(
+                index, faiss.PyCallbackIOWriter(fh.write)))
         return out
 
-    def restore(self, table: VectorTable, state: dict[str, np.ndarray]) -> None:
+    def restore(self, table: VectorTable, state: dict[str, np.ndarray | BinaryIO]) -> None:
         try:
             pca = None
             if "pca_mean" in state:
@@ -220,14 +201,18 @@ class HNSWBackend(SearchBackend):
                     raise ValueError("projection of another shape")
                 pca = (mean, comp)
             index = None
-            if "graph" in state:
-                index = self._faiss.deserialize_index(np.asarray(state["graph"], np.uint8))
+            graph = state.get("graph")
+            if isinstance(graph, np.ndarray):  # an index file of version 1
+                index = self._faiss.deserialize_index(np.asarray(graph, np.uint8))
+            elif graph is not None:
+                index = self._faiss.read_index(self._faiss.PyCallbackIOReader(graph.read))
+            if graph is not None:
                 want = self.pca_dim if pca is not None else table.dim
                 if index.ntotal != table.n or index.d != want:
                     raise ValueError("graph of another size")
             elif table.n >= self.min_rows:
                 raise ValueError("no graph")
-        except (ValueError, RuntimeError, KeyError):
+        except (ValueError, RuntimeError, KeyError, OSError, zipfile.BadZipFile):
             self.rebuild(table)  # a stale or damaged graph costs a rebuild, not a wrong answer
             return
         self._pca, self._index = pca, index
@@ -237,7 +222,7 @@ class HNSWBackend(SearchBackend):
         if self._index is None or table.n >= 2 * max(self._trained_at, 1):
             self.rebuild(table)
         else:
-            self._index.add(self._project(table.vectors[start:]))
+            self._index.add(self._project(table.rows(start, table.n)))
 
     def candidates(self, table: VectorTable, q: np.ndarray, k: int) -> np.ndarray:
         if self._index is None:
@@ -299,6 +284,7 @@ class Relocator:
         self._owners: list[tuple[str, str]] = []
         self._rows: dict[str, np.ndarray] = {}
         self._dead = 0
+        self._spill = None
         self._backend = BACKENDS[self.backend](**(self.backend_params or {}))
 
     @property
@@ -309,17 +295,22 @@ class Relocator:
     def n_states_(self) -> int:
         return 0 if self._table is None else self._table.n - self._dead
 
-    def fit(self, models, *, progress: Callable[[int], None] | None = None) -> Relocator:
+    def fit(self, models, *, progress: Callable[[int], None] | None = None,
+            spill: str | os.PathLike[str] | None = None) -> Relocator:
         """Index every state of ``models``: a :class:`ModelStore` or an iterable of models.
 
         A store is read as a stream of feature batches (:meth:`ModelStore.feature_batches`):
         no model is held, and a graph-database store is never loaded as models at all, so
-        fitting needs little more than the features' own bytes. ``progress`` is called with
-        the number of states added by each batch.
+        fitting needs little more than the features' own bytes, or, with ``spill`` (a
+        directory), only the search graph's: the feature rows wait in a temporary file there
+        (:class:`~kgnav.memory.vector_table.VectorTable`), which suits a backend that reads a
+        few rows a query (``hnsw``). ``progress`` is called with the number of states added by
+        each batch.
         """
         from kgnav.memory.store import ModelStore
 
         self._reset()
+        self._spill = spill
         if isinstance(models, ModelStore):
             with models.reading():  # one open of a database for all three
                 self.store_revision_ = models.revision()
@@ -329,7 +320,7 @@ class Relocator:
                         self.remove(b.model_id)
                         continue
                     if self._table is None and n is not None:
-                        self._table = VectorTable(b.feature_dim, capacity=n)
+                        self._table = VectorTable(b.feature_dim, capacity=n, spill=spill)
                     self._extend(b.model_id, b.extractor, b.feature_dim, b.state_ids,
                                  b.features)
                     if progress is not None:
@@ -373,7 +364,7 @@ class Relocator:
         if self.feature_dim_ is None:
             self.feature_dim_, self.extractor_ = dim, extractor
             if self._table is None or self._table.dim != dim:
-                self._table = VectorTable(dim)
+                self._table = VectorTable(dim, spill=self._spill)
         if dim != self.feature_dim_:
             raise FeatureDimError((dim,), self.feature_dim_)
         if extractor != self.extractor_:
@@ -390,8 +381,7 @@ class Relocator:
 
     def _compact(self) -> None:
         keep = np.flatnonzero(self._table.alive)
-        table = VectorTable(self._table.dim)
-        table.append(self._table.vectors[keep])
+        table = self._table.compacted(keep)
         remap = np.full(self._table.n, -1)
         remap[keep] = np.arange(len(keep))
         self._owners = [self._owners[i] for i in keep]
@@ -419,7 +409,7 @@ class Relocator:
         if len(cand) < k:  # the approximate index ran into replaced rows: fall back to exact
             cand = ExactBackend().candidates(table, q, max(k, self.n_candidates))
             cand = cand[table.alive[cand]]
-        sims = table.vectors[cand] @ q
+        sims = table.take(cand) @ q
         order = np.argsort(-sims, kind="stable")[:k]
         return [
             Match(*self._owners[cand[i]], float(max(0.0, 1.0 - sims[i]))) for i in order
@@ -432,11 +422,10 @@ class Relocator:
 
     # ------------------------------------------------------------------ persistence
     def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write the fitted index to one ``.npz`` file (atomically): the unit features, which
-        model and state each row is, the search backend's graph and the store revision it was
-        fitted from. :meth:`load` reopens it without the store; :meth:`open` does both."""
-        from kgnav.common.atomic import atomic_open
-
+        """Write the fitted index to one file (atomically, :mod:`kgnav.memory.index_file`): the
+        unit features, which model and state each row is, the search backend's graph and the
+        store revision it was fitted from. :meth:`load` reopens it without the store;
+        :meth:`open` does both."""
         if self._dead:
             self._compact()
         model_ids = list(self._rows)
@@ -448,60 +437,69 @@ class Relocator:
                 "extractor": self.extractor_, "store_revision": self.store_revision_}
         arrays = {
             "meta": np.frombuffer(json.dumps(meta).encode(), np.uint8),
-            "vectors": (self._table.vectors if self._table is not None
+            "vectors": (Blob(self._table.write_npy) if self._table is not None
                         else np.zeros((0, self.feature_dim_ or 0), np.float32)),
             "model_ids": np.array(model_ids, dtype=str),
             "owner_model": np.fromiter((number[m] for m, _ in self._owners), np.int32, n),
             "state_ids": np.array([s for _, s in self._owners], dtype=str),
         }
-        arrays.update({f"backend.{k}": v for k, v in self._backend.state().items()})
-        path = Path(path)
-        with atomic_open(path, "wb") as fh:
-            np.savez(fh, **arrays)
-        return path
+        blobs = {}
+        for k, v in self._backend.state().items():
+            (blobs if isinstance(v, Blob) else arrays)[f"backend.{k}"] = v
+        return write_index(path, arrays, blobs)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Relocator:
-        """Reopen an index written by :meth:`save`. A file that is not one, or is damaged, is
-        a :class:`~kgnav.errors.KgnavError` naming it."""
+        """Reopen an index written by :meth:`save`. The feature rows stay in the file, mapped
+        into memory (a query reads the rows it re-ranks); the search graph is read into
+        memory. A file that is not an index, or is damaged, is a
+        :class:`~kgnav.errors.KgnavError` naming it."""
         path = Path(path)
         try:
-            with np.load(path, allow_pickle=False) as z:
-                meta = json.loads(bytes(z["meta"]).decode())
+            with IndexReader(path) as z:
+                meta = json.loads(bytes(z.array("meta")).decode())
                 if not isinstance(meta, dict) or meta.get("format") != INDEX_FORMAT:
                     raise ValueError("not a kgnav relocator index")
-                if meta.get("version") != INDEX_VERSION:
+                if meta.get("version") not in INDEX_VERSIONS_READ:
                     raise ValueError(f"index version {meta.get('version')}, this kgnav reads "
-                                     f"version {INDEX_VERSION}")
+                                     f"versions {', '.join(map(str, INDEX_VERSIONS_READ))}")
                 r = cls(threshold=meta["threshold"], backend=meta["backend"],
                         n_candidates=meta["n_candidates"], backend_params=meta["backend_params"])
-                vectors, owner = z["vectors"], z["owner_model"]
-                model_ids, state_ids = z["model_ids"].tolist(), z["state_ids"].tolist()
-                state = {k[len("backend."):]: z[k] for k in z.files if k.startswith("backend.")}
+                vectors, owner = _rows_of(z), z.array("owner_model")
+                model_ids, state_ids = z.array("model_ids").tolist(), z.array("state_ids").tolist()
+                state = {k[len("backend."):]: z.array(k) for k in z.arrays
+                         if k.startswith("backend.")}
+                state.update({k[len("backend."):]: z.blob(k) for k in z.blobs
+                              if k.startswith("backend.")})
+                if r._fill(meta, vectors, owner, model_ids, state_ids):
+                    r._backend.restore(r._table, state)  # inside: blobs are open streams
         except FileNotFoundError:
             raise KgnavError(f"{path}: no such relocator index") from None
         except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile,
                 UnicodeDecodeError) as exc:
             raise KgnavError(f"{path}: not a usable relocator index ({exc})") from None
-        n = len(state_ids)
-        dim = meta["feature_dim"]
-        if (vectors.dtype != np.float32 or vectors.ndim != 2 or vectors.shape[0] != n
-                or (dim is not None and vectors.shape[1] != dim) or owner.shape != (n,)
+        return r
+
+    def _fill(self, meta: dict, vectors: VectorTable, owner: np.ndarray, model_ids: list[str],
+              state_ids: list[str]) -> bool:
+        """Take the rows of a loaded index; False when it holds no features at all."""
+        n, dim = len(state_ids), meta["feature_dim"]
+        if (vectors is None or vectors.n != n or (dim is not None and vectors.dim != dim)
+                or owner.shape != (n,)
                 or (n and not 0 <= int(owner.min()) <= int(owner.max()) < len(model_ids))):
-            raise KgnavError(f"{path}: not a usable relocator index (inconsistent arrays)")
-        r.feature_dim_, r.extractor_ = dim, meta["extractor"]
-        r.store_revision_ = meta["store_revision"]
+            raise ValueError("inconsistent arrays")
+        self.feature_dim_, self.extractor_ = dim, meta["extractor"]
+        self.store_revision_ = meta["store_revision"]
         if dim is None:
-            return r
-        r._table = VectorTable(dim)
-        r._table._buf, r._table._alive, r._table.n = vectors, np.ones(n, bool), n
-        r._owners = [(model_ids[i], s) for i, s in zip(owner.tolist(), state_ids, strict=True)]
+            return False
+        self._table = vectors
+        self._owners = [(model_ids[i], s) for i, s in zip(owner.tolist(), state_ids,
+                                                          strict=True)]
         order = np.argsort(owner, kind="stable")
         bounds = np.cumsum(np.bincount(owner, minlength=len(model_ids)))
-        r._rows = {m: order[(bounds[i - 1] if i else 0):bounds[i]]
-                   for i, m in enumerate(model_ids)}
-        r._backend.restore(r._table, state)
-        return r
+        self._rows = {m: order[(bounds[i - 1] if i else 0):bounds[i]]
+                      for i, m in enumerate(model_ids)}
+        return True
 
     @classmethod
     def open(cls, store, *, path: str | os.PathLike[str] | None = None, rebuild: bool = False,
@@ -527,7 +525,10 @@ class Relocator:
                     and have.backend_params == want.backend_params):
                 have.threshold, have.n_candidates = want.threshold, want.n_candidates
                 return have
-        want.fit(store, progress=progress)
+        # a backend that re-ranks a few rows a query fits with its rows on disk beside the index
+        spill = (path.parent if not BACKENDS[want.backend].scans_all
+                 and os.access(path.parent, os.W_OK | os.X_OK) else None)
+        want.fit(store, progress=progress, spill=spill)
         try:
             want.save(path)
         except OSError as exc:
@@ -536,7 +537,25 @@ class Relocator:
         return want
 
 
+def _rows_of(z: IndexReader) -> VectorTable | None:
+    """The feature rows of an index file: left in the file when they lie there as plain
+    float32 rows, else read; None when they are not a 2-D float32 array."""
+    where = z.locate("vectors")
+    if where is not None:
+        offset, shape, dtype, fortran = where
+        if dtype != np.float32 or len(shape) != 2:
+            return None
+        if not fortran or shape[0] <= 1 or shape[1] <= 1:
+            return VectorTable.in_file(z.path, offset, shape[0], shape[1])
+    rows = z.array("vectors")
+    if rows.dtype != np.float32 or rows.ndim != 2:
+        return None
+    return VectorTable.wrap(np.ascontiguousarray(rows))
+
+
 #: What a saved relocator index says it is, and the layout version this code reads.
 INDEX_FORMAT = "kgnav-relocator"
-INDEX_VERSION = 1
+INDEX_VERSION = 2
+#: Version 1 held the HNSW graph as one array (a copy of the graph in memory to write or read).
+INDEX_VERSIONS_READ = (1, 2)
 
