@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import binascii
 import re
+import sys
 
 import numpy as np
 import pytest
@@ -205,3 +206,31 @@ def test_repeated_numbers_are_held_once_and_signed_zeros_stay_apart(tmp_path):
     assert len({id(x) for x in got}) < len(got) / 10  # shared, not one object per sighting
     texts = [b"-0.0", b"0.0", b"-0.0", b"2.5"]
     assert [math.copysign(1, x) for x in gr._shared(float, texts)] == [-1, 1, -1, 1]
+
+
+@pytest.mark.skipif(sys.implementation.name != "cpython", reason="CPython's dict layout")
+@pytest.mark.parametrize("reader", ["bulk", "xml"])
+def test_a_loaded_model_keeps_its_attribute_dicts_compact_and_ordinary(tmp_path, reader):
+    m = _walk()
+    path = tmp_path / "w.graphml"
+    m.save(path)
+    g = (gr._read_canonical(str(path), 1 << 30) if reader == "bulk"
+         else gr._XmlReader(str(path), 1 << 30).read())
+    sees = [(kd, d) for _, nbrs in g._succ.items() for kd in nbrs.values()
+            for k, d in kd.items() if k == "sees"]
+    states = [d for _, d in g.nodes(data=True) if d["kind"] == "state"]
+    assert sees and states
+    for kd, d in sees[:50] + [(None, s) for s in states[:50]]:
+        assert type(d) is dict and sys.getsizeof(d) < sys.getsizeof(dict(d))  # keys shared
+        if kd is not None:
+            assert type(kd) is dict and sys.getsizeof(kd) < sys.getsizeof(dict(kd))
+    # still a model like any other: it grows, merges and saves as the one it was loaded from
+    back = AbstractModel.from_graph(g)
+    assert back == m
+    d = sees[0][1]
+    d["extra"] = 1.0  # a key outside the shared table: the dict turns ordinary, nothing lost
+    assert d["extra"] == 1.0 and d["kind"] == "sees"
+    del d["extra"]
+    back.add_state(np.ones(16), (1.0, 1.0, 0.0), step=999)
+    back.save(tmp_path / "again.graphml")
+    assert AbstractModel.load(tmp_path / "again.graphml") == back

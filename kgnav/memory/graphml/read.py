@@ -214,6 +214,30 @@ def _chunks(path: str, limit: int, size: int = CHUNK):
             raise ModelFileError(path, "empty file")
 
 
+# ------------------------------------------------------------------------ compact attribute dicts
+# A model of many small states is mostly attribute dicts: a sighting's seven attributes take a
+# dict of 280 bytes and its key dict ({"sees": attrs}) 190 more, more than the sighting's text
+# in the file. The __dict__s of one class's instances share one keys table (PEP 412): each is
+# an ordinary dict, equal to and used like any other, at 150 and 100 bytes (CPython 3.11). Only
+# loading makes them: a model built or merged in memory keeps networkx's dicts.
+_SHARING = {kind: type(f"_{kind}_attributes", (), {})
+            for kind in ("state", "object", "sees", "transition", "edge_keys")}
+
+
+def _attrs(kind: str) -> dict:
+    """``{"kind": kind}``, sharing its keys with every other dict of ``kind``."""
+    d = _SHARING[kind]().__dict__
+    d["kind"] = kind
+    return d
+
+
+def _keydict(key: str, attrs: dict) -> dict:
+    """A multigraph's ``{edge key: attributes}`` for a first edge between two nodes."""
+    d = _SHARING["edge_keys"]().__dict__
+    d[key] = attrs
+    return d
+
+
 # ---------------------------------------------------------------------------------------- builder
 
 
@@ -400,7 +424,7 @@ class _Builder:
                             f"unknown kind {kind!r}")
         if not NODE_ID[kind].fullmatch(nid):
             raise self.fail(what, line, f"a {kind} id is {kind[0]} and a number, e.g. {kind[0]}12")
-        attrs = self.values(what, line, kind, raw, {"kind": kind})
+        attrs = self.values(what, line, kind, raw, _attrs(kind))
         reason = _check_node(self, kind, attrs)
         if reason:
             raise self.fail(what, line, reason)
@@ -416,7 +440,7 @@ class _Builder:
         kind = "sees" if key == SEES else "transition" if key in ACTIONS else None
         if kind is not None and len(data) + 1 == self.edge_sizes[kind]:
             parsers = self.edge_parsers[kind]
-            attrs = {"kind": kind}
+            attrs = _attrs(kind)
             try:
                 for kid, text in data.items():
                     name, parse = parsers[kid]
@@ -430,7 +454,7 @@ class _Builder:
                     nbrs = self.succ[u]
                     keydict = nbrs.get(v)
                     if keydict is None:
-                        nbrs[v] = self.pred[v][u] = {key: attrs}
+                        nbrs[v] = self.pred[v][u] = _keydict(key, attrs)
                         return
                     if key not in keydict:
                         keydict[key] = attrs
@@ -454,7 +478,7 @@ class _Builder:
         raw = self.named("edge", data, what, line)
         if "kind" in raw and raw.pop("kind") != kind:  # kind is implied by the id
             raise self.fail(what, line, f"a {kind} edge has kind {kind!r}")
-        attrs = self.values(what, line, kind, raw, {"kind": kind})
+        attrs = self.values(what, line, kind, raw, _attrs(kind))
         if u not in self.nodes or v not in self.nodes:
             self.later.append((key, u, v, attrs, line))
         else:
@@ -472,7 +496,7 @@ class _Builder:
         nbrs = self.succ[u]
         keydict = nbrs.get(v)
         if keydict is None:
-            nbrs[v] = self.pred[v][u] = {key: attrs}
+            nbrs[v] = self.pred[v][u] = _keydict(key, attrs)
         elif key in keydict:
             raise self.fail(what, line, "appears twice")
         else:
@@ -738,7 +762,11 @@ class _Bulk:
                 optional.append(f.name)
             names.append(f.name)
             columns.append(column)
-        out = [dict(zip(names, row, strict=False)) for row in zip(*columns, strict=False)]
+        out = []
+        for row in zip(*columns, strict=False):
+            d = _attrs(kind)
+            d.update(zip(names, row, strict=False))
+            out.append(d)
         for name in optional:  # absent: not in the dict (the builder would not have it either)
             for d in out:
                 if d[name] is None:
@@ -863,7 +891,7 @@ class _Canonical:
                 nbrs = succ[u]
                 keydict = nbrs.get(v)
                 if keydict is None:
-                    nbrs[v] = pred[v][u] = {key: attrs}
+                    nbrs[v] = pred[v][u] = _keydict(key, attrs)
                 elif key in keydict:
                     raise _NotCanonical  # a duplicate
                 else:
