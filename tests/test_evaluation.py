@@ -75,6 +75,39 @@ def test_wrong_merges_and_bridges_are_counted_from_ground_truth():
     assert s["late_merges"] == 1 and s["wrong_merges"] == 3 and s["wrong_bridges"] == 3
 
 
+def test_joins_and_wrong_joins_are_counted_from_ground_truth():
+    def rec(joins):
+        return {"variant": "si", "scene": "h", "success": True, "spl": 1.0, "softspl": 1.0,
+                "dts": 0.0, "relocated": False, "failure": None, "joins": joins}
+    ok = {"model": "h-e003", "into": "h-e000", "same_house": True, "error_m": 0.1,
+          "error_deg": 2.0}
+    recs = [rec([ok]), rec([dict(ok, error_deg=178.0)]),  # a rotated twin joined: wrong
+            rec([dict(ok, same_house=False, model="g-e000")]), rec([]), rec([ok, ok])]
+    s = summarize(recs)["si"]
+    assert s["joins"] == 5 and s["wrong_joins"] == 2
+
+
+def test_a_join_is_scored_against_the_houses_episode_starts():
+    from kgnav.agent.consolidation import Join
+    from kgnav.benchmark.runner import EvalConfig, _env, _join_fields, scene_name
+    from kgnav.common import se2
+
+    cfg = EvalConfig(split="train-small", scenes=1, episodes=3)
+    env = _env(cfg, 0)
+    name = scene_name(env, cfg, 0)
+    truth = se2.compose(se2.inverse(env.episode_start(0)), env.episode_start(2))
+
+    def fields(model, T):
+        return _join_fields(cfg, Join(model, f"{name}-e000", T, 0.9, 0.01, 100, (1.0, 2.0)))
+
+    right = fields(f"{name}-e002", truth)
+    assert right["same_house"] and right["error_m"] == 0.0 and right["error_deg"] == 0.0
+    turned = fields(f"{name}-e002", se2.compose(truth, (0.0, 0.0, 0.6)))
+    assert turned["error_deg"] == pytest.approx(34.38, abs=0.01) and turned["error_m"] > 1.0
+    other = fields("elsewhere-e002", truth)
+    assert not other["same_house"] and "error_m" not in other
+
+
 def test_variants_parse_and_config_checks():
     assert [v.name for v in parse_variants("si, ans,si")] == ["si", "ans"]
     with pytest.raises(KgnavError, match="unknown variant 'x'"):

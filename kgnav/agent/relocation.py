@@ -272,6 +272,21 @@ class Relocalizer:
                            np.array([nodes[o]["cls"] for o in objs], dtype=object))
         return self.relocation
 
+    def take_model(self, model) -> None:
+        """Judge a stored ``model`` as if it were this episode: its states' range profiles,
+        in the order they were added, become the episode's (for :meth:`mergeable` with
+        ``model`` as the episode: whether a whole stored model fits another; see
+        :mod:`kgnav.agent.consolidation`)."""
+        scan, nodes = model.scan, model.graph.nodes
+        if scan is None:
+            return
+        for i, s in enumerate(model.states()):
+            d = nodes[s]
+            if d.get("ranges") is not None:
+                self._all.append(((d["x"], d["y"], d["theta"]),
+                                  np.asarray(d["ranges"], np.float32), scan))
+                self._steps.append(i)
+
     def _judged_lately(self, step: int, model_id: str, T) -> bool:
         """A hypothesis agreeing with one that failed verification in the last few steps is
         not judged again yet (the scans have hardly changed)."""

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from kgnav.agent.camera import Camera
+from kgnav.agent.consolidation import Join, consolidate
 from kgnav.agent.features import loop_threshold, make_extractor
 from kgnav.agent.loop import MEMORY_GOAL_REASONS, AgentConfig, ObjectNavAgent
 from kgnav.agent.memory import Memory
@@ -112,6 +113,9 @@ class EvalConfig:
     drift_correction: bool = True
     forget_below: float = 0.2  # stored objects whose belief falls below this are forgotten
     forget_label_share: float = 0.5  # ... and those whose place mostly gave another class
+    # after each round, join the stored models that verifiably fit each other as a whole
+    # (kgnav.agent.consolidation): one memory per house
+    consolidate: bool = True
     preset: str = "default"  # the name of the agent settings (recorded in config.json)
     show: tuple[int, int] | None = None  # (scene, episode) to draw from above per variant
     policy: str | None = None  # global policy of ans/si (see variants.with_policy)
@@ -781,6 +785,15 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
                                            cfg.forget_label_share)
                     seen.setdefault(o.record["scene"], set()).update(o.seen)
                     truth.setdefault(o.record["scene"], {}).update(o.truth)
+                    if cfg.consolidate:
+                        joins = consolidate(models, [changed], threshold=threshold,
+                                            config=cfg.agent.relocation,
+                                            forget_below=cfg.forget_below,
+                                            forget_label_share=cfg.forget_label_share)
+                        if joins:
+                            o.record["joins"] = [_join_fields(cfg, j) for j in joins]
+                            gone = [*gone, *(j.model_id for j in joins)]
+                            changed = joins[-1].into
                     if store is not None:
                         store.save(models[changed])
                         for mid in gone:
@@ -830,6 +843,32 @@ def _topdown_path(cfg: EvalConfig, out: Path | None, variant: Variant, scene: in
     if out is None or cfg.show is None or (scene, episode) != tuple(cfg.show):
         return None
     return str(out / "topdown" / f"{variant.name}_{scene:02d}_e{episode:03d}.png")
+
+
+def _join_fields(cfg: EvalConfig, j: Join) -> dict:
+    """A join of two stored models, for ``episodes.jsonl``: the models, the verification, and
+    (scoring only) whether both are of one house and how far the join's transform is from the
+    truth at the folded model's centre (``error_m``, ``error_deg``; a wrong join is one of two
+    houses, or over 1 m or 30 degrees off)."""
+    same = _house_of(j.model_id) == _house_of(j.into)
+    out = {"model": j.model_id, "into": j.into, "transform": [round(v, 4) for v in j.transform],
+           "inliers": round(j.inliers, 3), "conflicts": round(j.conflicts, 3),
+           "same_house": same}
+    if same:
+        scene = next((k for k in cfg.scene_indices
+                      if scene_name(_env(cfg, k), cfg, k) == _house_of(j.into)), None)
+        if scene is not None:
+            gt = _GroundTruth(_env(cfg, scene), _house_of(j.into), 0)
+            fa, fb = _model_frame(gt, j.into), _model_frame(gt, j.model_id)
+            if fa is not None and fb is not None:
+                truth = se2.compose(se2.inverse(fa), fb)
+                c = j.centre
+                ex, ey = se2.apply_to_point(j.transform, *c)
+                tx, ty = se2.apply_to_point(truth, *c)
+                out["error_m"] = round(math.hypot(ex - tx, ey - ty), 3)
+                out["error_deg"] = round(math.degrees(se2.angle_diff(j.transform[2],
+                                                                     truth[2])), 2)
+    return out
 
 
 def absorb(models: dict[str, AbstractModel], o: Outcome, forget_below: float = 0.0,
@@ -965,6 +1004,9 @@ def summarize(records: Iterable[dict], seed: int = 0) -> dict[str, dict]:
             "late_merges": sum(1 for r in recs if "late_merge" in r),
             "wrong_merges": sum(1 for r in recs for m in _merges(r)
                                 if not m["same_house"] or _wrong(m)),
+            "joins": sum(len(r.get("joins", ())) for r in recs),
+            "wrong_joins": sum(1 for r in recs for j in r.get("joins", ())
+                               if not j["same_house"] or _wrong(j)),
             "wrong_bridges": sum(1 for r in recs if any(True for _ in _merges(r))
                                  for b in r.get("bridges", ())
                                  if _house_of(b["model"]) != r["scene"] or _wrong(b)),

@@ -130,6 +130,9 @@ def _noise(ctx, param, value: str | None) -> str | None:
 @click.option("--drift-correction/--no-drift-correction", default=True, show_default=True,
               help="With a drifting pose sensor (--noise), bend each episode onto the model it "
                    "merges into by its loop closures (a GTSAM pose graph; docs/drift.md).")
+@click.option("--consolidate/--no-consolidate", default=None,
+              help="After each round, join stored models that verifiably fit each other as a "
+                   "whole: one memory per house (default: on; off with --preset paper).")
 @click.option("--preset", type=click.Choice(["default", "paper"]), default="default",
               show_default=True,
               help="Agent settings: default (verified relocation, remembered geometry, "
@@ -148,8 +151,8 @@ def _noise(ctx, param, value: str | None) -> str | None:
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, workers, engine,
              address, segmenter, segmenter_weights, allow_domain_mismatch, extractor, threshold,
-             encoder_weights, pre_explore_steps, show, noise, drift_correction, preset, policy,
-             seed, store, quiet) -> None:
+             encoder_weights, pre_explore_steps, show, noise, drift_correction, consolidate, preset,
+             policy, seed, store, quiet) -> None:
     """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
     from kgnav.agent.loop import PRESETS
     from kgnav.agent.policy import make_policy, policy_names
@@ -190,6 +193,7 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
                      extractor=extractor, threshold=threshold, seed=seed,
                      pre_explore_steps=pre_explore_steps,
                      show=show, noise=noise, drift_correction=drift_correction,
+                     consolidate=(preset == "default") if consolidate is None else consolidate,
                      agent=PRESETS[preset](), forget_below=0.2 if preset == "default" else 0.0,
                      forget_label_share=0.5 if preset == "default" else 0.0,
                      preset=preset, policy=policy, env=env_name,
@@ -233,7 +237,7 @@ def print_summary(summary: dict) -> None:
     mem = {n: s for n, s in summary.items() if "memory" in s}
     if mem:
         t3 = Table("variant", "reloc. after 1st (min/mean)", "reloc. step",
-                   "wrong merges (bridges)",
+                   "wrong merges (bridges, joins)",
                    "models/house", "objects", "precision (trusted)", "copies", "recall",
                    "pose err. m (median / p95)",
                    title="Relocation and memory fidelity (against ground truth)")
@@ -243,7 +247,8 @@ def print_summary(summary: dict) -> None:
             t3.add_row(
                 name, "–" if lo is None else f"{lo:.2f} / {mean:.2f}",
                 "–" if s.get("relocation_step") is None else f"{s['relocation_step']:.0f}",
-                f"{s.get('wrong_merges', 0)} ({s.get('wrong_bridges', 0)})",
+                f"{s.get('wrong_merges', 0)} ({s.get('wrong_bridges', 0)}, "
+                f"{s.get('wrong_joins', 0)} of {s.get('joins', 0)})",
                 " ".join(f"{k}:{v}" for k, v in p["models_per_house"].items()),
                 str(p["objects"]), f"{_f(p['precision'])} ({_f(p['trusted_precision'])})",
                 _f(p["copies"]), _f(p["recall"]), _pose_error(p.get("pose_error_m")))

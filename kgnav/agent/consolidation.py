@@ -1,0 +1,118 @@
+"""One memory per house: joining stored models between episodes when verification allows it.
+
+An episode that never recognised a stored model is stored as a new one, so a house can end up
+with several models that cover the same rooms and were never joined (issue 28: four in one
+house, 1.59 copies of every real object). The episode's own late match
+(:meth:`~kgnav.agent.relocation.Relocalizer.mergeable`) compares one episode with the memory
+once, at its end; after a later episode has grown another model, the two may well fit.
+:func:`consolidate` therefore judges each model a memory update changed against the other
+stored models **as a whole**, exactly as the late match judges an episode: the feature matches
+of its states propose frame transforms per model, and each is verified against the whole
+model's range profiles (inliers, conflicts, an alternative alignment that fits about as well
+makes it ambiguous: a rotated twin) and its objects (those seen twice must mostly find their
+class where the other model has objects). A join that passes is a merge of the smaller model
+into the larger; nothing is joined on a feature match alone, so a look-alike room of another
+house, or the same room turned round, stays refused.
+
+>>> from kgnav.memory.synthetic import SyntheticWorld
+>>> w = SyntheticWorld(seed=1, size=(8.0, 8.0), n_objects=12, feature_dim=32)
+>>> a = w.explore(200, seed=0, model_id="house-e000")
+>>> models = {"house-e000": a}
+>>> consolidate(models, ["house-e000"], threshold=0.3)   # nothing else to join
+[]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from kgnav.common import se2
+from kgnav.memory.evidence import forget
+from kgnav.memory.merge import merge
+from kgnav.memory.model import AbstractModel
+
+__all__ = ["Join", "consolidate", "find_join"]
+
+
+@dataclass(frozen=True)
+class Join:
+    """Model ``model_id`` folded into ``into``; ``transform`` maps ``model_id``'s frame into
+    ``into``'s (before the fold; the joined model keeps ``into``'s frame and id)."""
+
+    model_id: str
+    into: str
+    transform: tuple[float, float, float]
+    inliers: float
+    conflicts: float
+    points: int
+    centre: tuple[float, float] = (0.0, 0.0)  # the mean of ``model_id``'s state positions
+
+
+def find_join(models: dict[str, AbstractModel], model_id: str, *, threshold: float,
+              config=None) -> Join | None:
+    """Whether the stored model ``model_id`` verifiably fits another of ``models`` as a
+    whole (see the module docstring): the best such fit, as a :class:`Join` of ``model_id``
+    into that model, or None. ``threshold``: the relocation feature-distance threshold;
+    ``config``: a :class:`~kgnav.agent.relocation.RelocationConfig` (its verification
+    settings; the whole-model check is always made)."""
+    from kgnav.agent.memory import Memory
+    from kgnav.agent.relocation import Relocalizer, RelocationConfig
+
+    model = models[model_id]
+    others = {k: m for k, m in models.items() if k != model_id
+              and m.feature_dim == model.feature_dim and m.extractor == model.extractor}
+    if not others or model.scan is None or model.n_states == 0:
+        return None
+    # stored models are already as straight as their own loop closures made them: no bend
+    cfg = replace(config or RelocationConfig(), merge_check=True, late_match=True, drift=None)
+    if not cfg.geometry:
+        return None  # a feature match alone never joins two memories
+    rel = Relocalizer(Memory(others, threshold=threshold), cfg)
+    rel.take_model(model)
+    r = rel.mergeable(model)
+    if r is None:
+        return None
+    return Join(model_id, r.model_id, tuple(float(v) for v in r.transform),
+                float(r.inliers or 0.0), float(r.conflicts or 0.0), int(r.points))
+
+
+def consolidate(models: dict[str, AbstractModel], changed: Iterable[str], *, threshold: float,
+                config=None, forget_below: float = 0.0,
+                forget_label_share: float = 0.0) -> list[Join]:
+    """Join each model of ``changed`` (in that order) with the stored model it verifiably fits
+    (:func:`find_join`), again with the joined model until it fits none; ``models`` (id ->
+    model) changes in place. The smaller of two (fewer states) is folded into the larger,
+    which keeps its id and frame. Objects are then forgotten as the memory update forgets
+    them (``forget_below``, ``forget_label_share``). Returns the joins made, in order."""
+    joins: list[Join] = []
+    queue = [m for m in changed if m in models]
+    while queue:
+        mid = queue.pop(0)
+        if mid not in models:
+            continue
+        j = find_join(models, mid, threshold=threshold, config=config)
+        if j is None:
+            continue
+        small, big = models[j.model_id], models[j.into]
+        if small.n_states > big.n_states:  # fold the other way: the larger keeps its frame
+            j = Join(j.into, j.model_id, se2.inverse(j.transform), j.inliers, j.conflicts,
+                     j.points)
+            small, big = big, small
+        j = replace(j, centre=_centroid(small))
+        joined = merge(big, small, transform=j.transform)
+        if forget_below > 0 or forget_label_share > 0:
+            forget(joined, forget_below, min_label_share=forget_label_share)
+        del models[j.model_id]
+        models[j.into] = joined
+        joins.append(j)
+        queue.insert(0, j.into)  # the joined model may now fit yet another
+    return joins
+
+
+def _centroid(model: AbstractModel) -> tuple[float, float]:
+    """The mean position of a model's states (where a join's error is measured)."""
+    xy = np.array([model.pose(s)[:2] for s in model.states()], float).reshape(-1, 2)
+    return (float(xy[:, 0].mean()), float(xy[:, 1].mean())) if len(xy) else (0.0, 0.0)

@@ -1,0 +1,141 @@
+"""One memory per house: stored models that verifiably fit each other as a whole are joined
+between episodes; look-alike rooms of another house and rotated twins are not."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from kgnav.agent.consolidation import consolidate, find_join
+from kgnav.agent.relocation import RelocationConfig
+from kgnav.common import se2
+from kgnav.memory.model import AbstractModel
+from tests.test_relocation import (
+    DIM,
+    EAST_WALK,
+    HOUSE_1,
+    HOUSE_2,
+    NO_MATCH,
+    ROOM_A,
+    ROOM_B,
+    SCAN,
+    WALK,
+    cast,
+    stored_model,
+    unit,
+)
+
+#: the half turn about room A's centre: room A's rectangle onto itself, its stub elsewhere
+HALF_TURN = se2.compose((3.0, 2.0, math.pi), (-3.0, -2.0, 0.0))
+
+
+def _model(model_id: str, walls, world_poses, frame=(0.0, 0.0, 0.0), features=None,
+           extra: int = 0) -> AbstractModel:
+    """A model whose states stood at ``world_poses`` (seeing ``walls``), stored in the frame
+    whose origin is the world pose ``frame``; ``features``: the feature id of each state
+    (None: features that match nothing)."""
+    inv = se2.inverse(frame)
+    m = AbstractModel(DIM, model_id=model_id, extractor="toy", scan=SCAN)
+    for k, world in enumerate(world_poses):
+        f = unit(k if features is None else features[k]) if (
+            features is None or features[k] is not None) else NO_MATCH
+        m.add_state(f, se2.compose(inv, world), (), step=k, ranges=cast(walls, world))
+    rng = np.random.default_rng(len(model_id) + extra)
+    for k in range(extra):  # more states, matching nothing: a larger model
+        x, y, t = world_poses[k % len(world_poses)]
+        world = (x + 0.2, y + 0.1, t + 0.3)
+        m.add_state(rng.normal(size=DIM), se2.compose(inv, world), (),
+                    step=len(world_poses) + k, ranges=cast(walls, world))
+    return m
+
+
+def _origins(m: AbstractModel, prefix: str) -> int:
+    """States of ``m`` made of states of the model ``prefix``."""
+    return sum(1 for s in m.states()
+               if any(o.startswith(prefix + "/") for o in m.graph.nodes[s]["origin"].split()))
+
+
+def test_two_models_of_one_room_are_joined_in_the_right_frame():
+    frame_b = (1.0, 2.0, 0.5)  # where model b's first episode started, in a's frame
+    a = _model("a-e000", ROOM_A, WALK, extra=4)
+    b = _model("a-e003", ROOM_A, WALK, frame=frame_b)
+    models = {"a-e000": a, "a-e003": b}
+    joins = consolidate(models, ["a-e003"], threshold=0.05)
+    assert [(j.model_id, j.into) for j in joins] == [("a-e003", "a-e000")]  # into the larger
+    T = joins[0].transform
+    assert math.dist(T[:2], frame_b[:2]) < 0.05 and se2.angle_diff(T[2], frame_b[2]) < 0.02
+    assert list(models) == ["a-e000"]
+    joined = models["a-e000"]
+    assert _origins(joined, "a-e003") == len(WALK) and _origins(joined, "a-e000") == a.n_states
+
+
+def test_the_larger_model_keeps_its_frame_whichever_changed():
+    frame_b = (1.0, 2.0, 0.5)
+    a = _model("a-e000", ROOM_A, WALK)
+    b = _model("a-e003", ROOM_A, WALK, frame=frame_b, extra=6)
+    models = {"a-e000": a, "a-e003": b}
+    joins = consolidate(models, ["a-e000"], threshold=0.05)
+    assert [(j.model_id, j.into) for j in joins] == [("a-e000", "a-e003")]
+    T = joins[0].transform  # a's frame -> b's: the inverse of b's origin in a's frame
+    want = se2.inverse(frame_b)
+    assert math.dist(T[:2], want[:2]) < 0.05 and se2.angle_diff(T[2], want[2]) < 0.02
+    assert list(models) == ["a-e003"]
+
+
+def test_three_models_of_one_house_become_one():
+    models = {"a-e000": _model("a-e000", ROOM_A, WALK, extra=3),
+              "a-e001": _model("a-e001", ROOM_A, WALK, frame=(0.5, -1.0, 1.0)),
+              "a-e002": _model("a-e002", ROOM_A, WALK, frame=(-2.0, 0.5, -0.4))}
+    joins = consolidate(models, ["a-e001"], threshold=0.05)
+    assert len(joins) == 2 and list(models) == ["a-e000"]
+    assert all(_origins(models["a-e000"], m) for m in ("a-e000", "a-e001", "a-e002"))
+
+
+def test_a_look_alike_room_of_another_house_is_not_joined():
+    """House 2's copy of room A opens east into a narrow room; house 1's room A has a door
+    east. The features of house 2's model match house 1's states: the whole model refuses."""
+    h1 = _model("h1-e000", HOUSE_1, WALK + EAST_WALK)
+    east = EAST_WALK + [(x + 0.25, y + 0.15, t - 0.2) for x, y, t in EAST_WALK]
+    h2 = _model("h2-e000", HOUSE_2, east + WALK,
+                features=[None] * (2 * len(EAST_WALK)) + list(range(len(WALK))))
+    models = {"h1-e000": h1, "h2-e000": h2}
+    assert find_join(models, "h2-e000", threshold=0.05) is None
+    assert consolidate(models, ["h2-e000", "h1-e000"], threshold=0.05) == []
+    assert sorted(models) == ["h1-e000", "h2-e000"]
+    # the same walk in house 1 itself fits, and is joined
+    same = _model("h1-e001", HOUSE_1, east + WALK,
+                  features=[None] * (2 * len(EAST_WALK)) + list(range(len(WALK))))
+    assert find_join({"h1-e000": h1, "h1-e001": same}, "h1-e001", threshold=0.05) is not None
+
+
+def test_a_room_of_another_shape_is_not_joined():
+    models = {"a-e000": stored_model(), "b-e000": _model("b-e000", ROOM_B, WALK[:4] + WALK[6:])}
+    assert consolidate(models, ["b-e000"], threshold=0.05) == []
+
+
+def test_a_rotated_twin_is_not_joined():
+    """Model b stood at the half-turned places of room A, but each state looks like (has the
+    features of) the unturned place: its matches propose the half turn, which the stub refutes."""
+    a = stored_model()
+    b = _model("a-e001", ROOM_A, [se2.compose(HALF_TURN, p) for p in WALK])
+    models = {"a-e000": a, "a-e001": b}
+    assert find_join(models, "a-e001", threshold=0.05) is None
+    assert list(models) == ["a-e000", "a-e001"]
+
+
+def test_feature_matches_alone_never_join():
+    models = {"a-e000": stored_model(), "a-e001": _model("a-e001", ROOM_A, WALK,
+                                                         frame=(1.0, 0.0, 0.0))}
+    assert find_join(models, "a-e001", threshold=0.05,
+                     config=RelocationConfig(geometry=False)) is None
+    assert find_join(models, "a-e001", threshold=0.05) is not None
+
+
+@pytest.mark.parametrize("other", ["extractor", "dim"])
+def test_models_of_another_extractor_or_size_are_not_candidates(other):
+    b = _model("a-e001", ROOM_A, WALK, frame=(1.0, 0.0, 0.0))
+    a = (AbstractModel(DIM, model_id="a-e000", extractor="other", scan=SCAN) if other ==
+         "extractor" else AbstractModel(DIM + 1, model_id="a-e000", extractor="toy", scan=SCAN))
+    assert find_join({"a-e000": a, "a-e001": b}, "a-e001", threshold=0.05) is None
