@@ -517,3 +517,24 @@ def test_the_path_check_on_a_window_agrees_with_inflating_the_whole_crop(seed, d
                 for di, dj in steps]
         expected = any(not trav[i - 10, j - 10] for i, j in path)
         assert planner.path_blocked(m, crop, agent, path) == expected
+
+
+def test_weak_views_reach_the_model_only_when_asked(env):
+    """With ``weak_score`` the learned segmenter's sub-threshold segments become views of
+    their objects, scored under its threshold; without it (the default) none is stored, and a
+    memory-less agent that did not ask leaves the shared segmenter as it found it."""
+    seg = make_segmenter("learned", 0)
+    threshold = seg.min_score
+    scores = {}
+    for weak_score in (None, 0.3):
+        agent = ObjectNavAgent(Camera.from_env(env), seg, make_extractor("opencv-gist"),
+                               config=AgentConfig(weak_score=weak_score))
+        assert seg.weak_score == weak_score
+        _run(env, agent, 0)
+        g = agent.model_.graph
+        scores[weak_score] = [d["score"] for *_e, k, d in g.edges(keys=True, data=True)
+                              if k == "sees"]
+    assert scores[None] and min(scores[None]) >= threshold
+    assert any(0.3 <= s < threshold for s in scores[0.3])
+    ObjectNavAgent(Camera.from_env(env), seg, make_extractor("opencv-gist"))
+    assert seg.weak_score is None

@@ -139,3 +139,37 @@ def test_models_of_another_extractor_or_size_are_not_candidates(other):
     a = (AbstractModel(DIM, model_id="a-e000", extractor="other", scan=SCAN) if other ==
          "extractor" else AbstractModel(DIM + 1, model_id="a-e000", extractor="toy", scan=SCAN))
     assert find_join({"a-e000": a, "a-e001": b}, "a-e001", threshold=0.05) is None
+
+
+def test_the_benchmark_store_follows_joins_even_of_a_model_never_saved(tmp_path, monkeypatch):
+    """A model stored as new by one episode and joined into another model in the same memory
+    update is never written; one joined later is deleted from the store: the store ends
+    holding exactly the memory's models, and the joins are in episodes.jsonl."""
+    import json
+
+    from kgnav import ModelStore
+    from kgnav.agent.consolidation import Join
+    from kgnav.benchmark import runner
+    from kgnav.memory.merge import merge
+
+    def join_all(models, changed, **_kw):  # fold every other model of a house into its first
+        joins = []
+        for mid in changed:
+            house = mid.rpartition("-")[0]
+            first = min(k for k in models if k.startswith(house + "-"))
+            if mid != first and mid in models:
+                models[first] = merge(models[first], models.pop(mid),
+                                      transform=(0.0, 0.0, 0.0))
+                joins.append(Join(mid, first, (0.0, 0.0, 0.0), 0.9, 0.0, 100))
+        return joins
+
+    monkeypatch.setattr(runner, "consolidate", join_all)
+    cfg = runner.EvalConfig(split="val-small", scenes=2, episodes=3, max_steps=60,
+                            segmenter="default", variants=("si",),
+                            threshold=1e-9)  # never relocates: every episode a new model
+    records, summary = runner.run_eval(cfg, tmp_path, progress=False)
+    store = ModelStore(runner.memory_path(tmp_path, "si"))
+    assert sorted(store.ids()) == ["val-small_00-e000", "val-small_01-e000"]
+    lines = [json.loads(x) for x in (tmp_path / "episodes.jsonl").read_text().splitlines()]
+    joined = [j["model"] for r in lines for j in r.get("joins", ())]
+    assert summary["si"]["joins"] == len(joined) > 0

@@ -28,11 +28,14 @@ from tests.strategies import SCAN, models
 PROPS = settings(max_examples=60, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 
-def brute_evidence(model: AbstractModel, oid: str, miss_range: float = 3.0) -> Evidence:
+def brute_evidence(model: AbstractModel, oid: str, miss_range: float = 3.0,
+                   weak_below: float = 0.0) -> Evidence:
     """Evidence of one object, state by state (no vectorisation, no table)."""
     g = model.graph
     d = g.nodes[oid]
     seers = {s for s, _, k in g.in_edges(oid, keys=True) if k == SEES}
+    weak = sum(1 for s, _, k, e in g.in_edges(oid, keys=True, data=True)
+               if k == SEES and e["score"] < weak_below)
     missed = 0
     for s in model.states():
         sd = g.nodes[s]
@@ -46,7 +49,7 @@ def brute_evidence(model: AbstractModel, oid: str, miss_range: float = 3.0) -> E
                 if g.nodes[r]["cls"] != d["cls"]
                 and math.hypot(g.nodes[r]["x"] - d["x"], g.nodes[r]["y"] - d["y"]) <= 0.4)
     return Evidence(len(seers), len({g.nodes[s]["episode"] for s in seers}), missed,
-                    float(d["score"]), rival)
+                    float(d["score"]), rival, weak)
 
 
 @PROPS
@@ -60,13 +63,19 @@ def test_evidence_equals_a_state_by_state_count(m):
 @PROPS
 @given(models(model_id="a", scan=True), models(model_id="b", scan=True), st.data())
 def test_merging_combines_evidence_exactly(a, b, data):
-    """The evidence of every object of a merge is that of the union of states and views."""
+    """The evidence of every object of a merge is that of the union of states and views (weak
+    views included: each view keeps its score)."""
     T = data.draw(st.tuples(st.floats(-3, 3), st.floats(-3, 3),
                             st.floats(-math.pi, math.pi, exclude_max=True)))
     m = merge(a, b, transform=T)
     ev = object_evidence(m)
     for o in m.objects():
         assert ev[o] == brute_evidence(m, o)
+    weak = object_evidence(m, weak_below=0.5)
+    for o in m.objects():
+        assert weak[o] == brute_evidence(m, o, weak_below=0.5)
+    assert sum(e.n_weak for e in weak.values()) == sum(
+        1 for *_e, k, d in m.graph.edges(keys=True, data=True) if k == SEES and d["score"] < 0.5)
     # views and scores are conserved: no view is lost or counted twice
     for o in m.objects():
         views = [d["score"] for _s, _o, k, d in m.graph.in_edges(o, keys=True, data=True)
@@ -153,6 +162,26 @@ def test_another_label_at_the_same_place_takes_the_goal_share():
     assert list(m.objects()) == [desk]
 
 
+def test_repeated_weak_views_become_belief_and_one_does_not():
+    """Weak views (segments under the detection threshold) add less than detections: one is
+    not believed, several from different states are; misses still count against them."""
+    model = BeliefModel(weak_below=0.6, weak_weight=1.0)
+    one = Evidence(1, 1, 0, 0.5, n_weak=1)
+    four = Evidence(4, 2, 0, 2.0, n_weak=4)
+    assert belief(one, model) < 0.2 < 0.5 < belief(four, model)
+    assert belief(Evidence(4, 2, 4, 2.0, n_weak=4), model) < 0.5  # looked at, unseen, 4 times
+    assert belief(Evidence(1, 1, 0, 0.9), model) > belief(one, model)  # a detection: more
+    m = AbstractModel(2, model_id="e", scan=ScanGeometry(90.0, 4, 5.0))
+    far = np.full(4, 5.0)
+    for k in range(4):
+        m.add_state([1.0, float(k)], (0.3 * k, 0, 0),
+                    [Detection("plant", (2.0, 0.0, 0.4), score=0.5)], ranges=far)
+    ev = object_evidence(m, weak_below=0.6)["o0"]
+    assert (ev.n_views, ev.n_weak, ev.n_missed) == (4, 4, 0)
+    assert belief(ev, model) > 0.5
+    assert object_evidence(m)["o0"].n_weak == 0  # weak_below = 0: every view a detection
+
+
 def test_belief_model_weights():
     bm = BeliefModel(p_detect=0.6, p_false=0.05, prior=-3.0)
     assert bm.view_weight == pytest.approx(math.log(12))
@@ -227,6 +256,7 @@ def test_geometry_and_evidence_survive_save_and_load(tmp_path, m):
     for s in m.states():
         assert back.ranges(s).tobytes() == m.ranges(s).tobytes()
     assert object_evidence(back) == object_evidence(m)
+    assert object_evidence(back, weak_below=0.5) == object_evidence(m, weak_below=0.5)
 
 
 def test_a_version_1_file_still_loads_and_saves_as_the_current_version(tmp_path):

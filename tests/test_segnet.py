@@ -352,3 +352,25 @@ def test_segmenter_bench_cli(tmp_path, cli):
     assert "mean IoU" in out
     code, _, err = cli("segmenter-bench", "--out", tmp_path / "c", "--segmenters", "learned,x")
     assert code == 2 and "unknown segmenter 'x'" in err and err.count("\n") == 1
+
+
+def test_segments_under_the_threshold_come_back_apart_when_asked():
+    from kgnav.nets.segnet.segmenter import segmentation_from_classes
+
+    cls = np.zeros((30, 40), np.int32)
+    conf = np.zeros((30, 40), np.float32)
+    for k, (c, mean) in enumerate([(1, 0.9), (2, 0.5), (3, 0.2)]):  # strong, weak, neither
+        cls[5:15, 2 + 12 * k:10 + 12 * k] = c
+        conf[5:15, 2 + 12 * k:10 + 12 * k] = mean
+    plain = segmentation_from_classes(cls, conf, (80, 60), 10, min_score=0.6)
+    out = segmentation_from_classes(cls, conf, (80, 60), 10, min_score=0.6, weak_score=0.4)
+    assert plain.weak is None
+    assert out.segments == plain.segments and [s.score for s in out.segments] == [0.9]
+    assert np.array_equal(out.classes, plain.classes)
+    assert np.array_equal(out.instances, plain.instances)
+    weak = out.weak
+    assert [(s.cls, s.score) for s in weak.segments] == [(OBJECT_CLASSES[1], 0.5)]
+    assert weak.classes.shape == (60, 80) and set(np.unique(weak.classes)) == {0, 2}
+    assert not (weak.instances.astype(bool) & out.instances.astype(bool)).any()
+    none = segmentation_from_classes(cls, conf, (80, 60), 10, min_score=0.1, weak_score=0.05)
+    assert none.weak.segments == [] and len(none.segments) == 3

@@ -77,7 +77,7 @@ def choose_goal(model: AbstractModel, cls: str, near, config: GoalConfig,
     if not cands:
         return None
     ev = object_evidence(model, [o.id for o in cands], table=table, cache=cache,
-                         stale=config.evidence_refresh)
+                         stale=config.evidence_refresh, weak_below=config.belief.weak_below)
     trusted = [o for o in cands if trusts(ev[o.id], config)]
     judged = [ev[o.id].mean_score for o in trusted if ev[o.id].n_views >= config.score_views]
     if judged and math.isfinite(config.score_margin):

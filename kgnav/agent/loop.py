@@ -101,6 +101,10 @@ class AgentConfig:
     look_around: bool = True  # turn a full circle before the first move (turns cost no path
     # length); with a memory, the turn ends once a relocation is accepted
     map_resolution: float = 0.05
+    # the segmenter's segments scoring at least this but under its detection threshold are
+    # stored as weak views of the objects they see (None: off); what they are worth to the
+    # belief in an object is goals.belief's weak_weight (kgnav.memory.evidence)
+    weak_score: float | None = None
 
     def __post_init__(self):
         if self.live_override not in LIVE_OVERRIDES:
@@ -223,6 +227,8 @@ class ObjectNavAgent:
     ):
         self.camera = camera
         self.segmenter = segmenter
+        if hasattr(segmenter, "weak_score"):  # its sub-threshold segments, if asked for
+            segmenter.weak_score = (config or AgentConfig()).weak_score
         self.extractor = extractor
         self.classes = tuple(classes)
         self.actions = actions or ActionSpec()
@@ -320,8 +326,8 @@ class ObjectNavAgent:
         self._prev_pose = pose
 
         s = p.state
-        sid = self.model_.add_state(s.features, pose, s.detections, episode=self.episode,
-                                    step=self.step_, ranges=s.ranges)
+        sid = self.model_.add_state(s.features, pose, s.detections + s.weak,
+                                    episode=self.episode, step=self.step_, ranges=s.ranges)
         cur = sid
         reloc = self.relocalizer
         if self.relocation_ is not None:
@@ -388,7 +394,7 @@ class ObjectNavAgent:
     def _add_to_current(self, state: AbstractState) -> str:
         T = self.relocation_.transform
         dets = [replace(d, position=(*se2.apply_to_point(T, *d.position[:2]), d.position[2]))
-                for d in state.detections]
+                for d in state.detections + state.weak]
         cur = self.current_.add_state(state.features, self._to_model(state.pose), dets,
                                       episode=self.episode, step=self.step_,
                                       ranges=state.ranges)
@@ -536,7 +542,8 @@ class ObjectNavAgent:
         goals = self.config.goals
         if goals.rule != "belief":
             return False
-        ev = object_evidence(self.current_, [object_id], table=self._scans)[object_id]
+        ev = object_evidence(self.current_, [object_id], table=self._scans,
+                             weak_below=goals.belief.weak_below)[object_id]
         return trusts(ev, goals)
 
     def _overrides(self, live: Target, remembered: Target) -> bool:
@@ -550,7 +557,8 @@ class ObjectNavAgent:
             return True
         ids = [live.object_id, remembered.object_id]
         ev = object_evidence(self.current_, ids, table=self._scans, cache=self._evidence,
-                             stale=self.config.goals.evidence_refresh)
+                             stale=self.config.goals.evidence_refresh,
+                             weak_below=self.config.goals.belief.weak_below)
         if remembered.object_id not in ev:
             return True
         b = self.config.goals.belief
@@ -743,5 +751,8 @@ def _vocabulary_map(segmenter, classes: tuple[str, ...]) -> np.ndarray | None:
 
 def _relabel(seg: Segmentation, table: np.ndarray, classes: tuple[str, ...]) -> Segmentation:
     """A segmentation in the agent's vocabulary: ids mapped, other classes' segments gone."""
-    return Segmentation(table[seg.classes], seg.instances,
-                        [sg for sg in seg.segments if sg.cls in classes])
+    out = Segmentation(table[seg.classes], seg.instances,
+                       [sg for sg in seg.segments if sg.cls in classes])
+    if seg.weak is not None:
+        out.weak = _relabel(seg.weak, table, classes)
+    return out

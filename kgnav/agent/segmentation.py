@@ -14,7 +14,7 @@ registers is asked for (the ground-truth segmenters do not pull in torch).
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 import cv2
@@ -61,6 +61,9 @@ class Segmentation:
     classes: np.ndarray
     instances: np.ndarray
     segments: list[Segment]
+    #: segments below the segmenter's detection threshold (its own maps), when it was asked
+    #: for them: nothing to act on, but views a memory fuses (see ``AgentConfig.weak_views``)
+    weak: Segmentation | None = field(default=None, repr=False, compare=False)
 
     @classmethod
     def from_maps(

@@ -30,6 +30,7 @@ class AbstractState:
     pose: tuple[float, float, float]  # episode frame
     detections: tuple[Detection, ...]  # {F_s,c}; C_s is their classes
     ranges: np.ndarray | None = None  # range profile (see StateCreator.scan)
+    weak: tuple[Detection, ...] = ()  # from the segmenter's sub-threshold segments, if asked
 
     @property
     def classes(self) -> frozenset[str]:
@@ -100,6 +101,8 @@ class StateCreator:
     def __call__(self, features: np.ndarray, segmentation, depth: np.ndarray,
                  pose, columns: np.ndarray | None = None) -> AbstractState:
         pose = tuple(float(v) for v in pose)
+        weak = getattr(segmentation, "weak", None)
         return AbstractState(np.asarray(features, np.float32), pose,
                              self.detections(segmentation, depth, pose),
-                             self.ranges(depth, columns))
+                             self.ranges(depth, columns),
+                             () if weak is None else self.detections(weak, depth, pose))

@@ -39,7 +39,7 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 
 from kgnav.common import se2
-from kgnav.memory.evidence import belief, object_evidence
+from kgnav.memory.evidence import DEFAULT_BELIEF, BeliefModel, belief, object_evidence
 from kgnav.memory.model import AbstractModel
 
 TOLERANCE = 0.5  # m from a real instance's footprint
@@ -120,23 +120,26 @@ def _ratio(a: float, b: float) -> float | None:
     return round(a / b, 3) if b else None
 
 
-def model_objects(model: AbstractModel, frame) -> list[tuple[str, float, float, float, int]]:
+def model_objects(model: AbstractModel, frame, belief_model: BeliefModel = DEFAULT_BELIEF
+                  ) -> list[tuple[str, float, float, float, int]]:
     """Every object of ``model`` as (class, world x, world y, belief, views); ``frame`` is the
-    world pose of the model's frame origin (the start of the episode that created it)."""
-    ev = object_evidence(model)
+    world pose of the model's frame origin (the start of the episode that created it);
+    ``belief_model``: the agent's (:func:`kgnav.memory.evidence.belief`)."""
+    ev = object_evidence(model, weak_below=belief_model.weak_below)
     out = []
     for o in model.objects():
         d = model.graph.nodes[o]
         x, y = se2.apply_to_point(frame, d["x"], d["y"])
-        out.append((d["cls"], x, y, belief(ev[o]), d["n_views"]))
+        out.append((d["cls"], x, y, belief(ev[o], belief_model), d["n_views"]))
     return out
 
 
 def score_memory(models: Iterable[tuple[AbstractModel, tuple]], instances,
-                 seen: set[int] | None = None) -> dict:
+                 seen: set[int] | None = None, belief_model: BeliefModel = DEFAULT_BELIEF
+                 ) -> dict:
     """Score the models of one house together (each with its world frame)."""
     models = list(models)
-    objs = [o for m, frame in models for o in model_objects(m, frame)]
+    objs = [o for m, frame in models for o in model_objects(m, frame, belief_model)]
     return {"models": len(models), **score_objects(objs, instances, seen)}
 
 

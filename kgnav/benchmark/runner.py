@@ -761,6 +761,7 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
         for kind in STORES:
             _clear_store(memory_path(out, variant.name, kind))
     store = ModelStore(store_dir) if store_dir is not None else None
+    stored: set[str] = set()  # ids of the models written to the store
     bar = _bar(sum(counts.values()), variant.name, progress)
     records: list[dict] = []
     step = 1 if variant.learns else _rounds_per_call(engine, len(scenes))
@@ -796,8 +797,11 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
                             changed = joins[-1].into
                     if store is not None:
                         store.save(models[changed])
+                        stored.add(changed)
                         for mid in gone:
-                            store.delete(mid)
+                            if mid in stored:  # (a model joined before it was ever saved)
+                                store.delete(mid)
+                                stored.discard(mid)
             for r in range(r0, min(r0 + step, rounds)):  # records and .part, round by round
                 round_records = [o.record for o in outcomes if o.record["episode"] == r]
                 records.extend(round_records)
@@ -828,7 +832,8 @@ def memory_fidelity(cfg: EvalConfig, models: dict[str, AbstractModel],
         gt = _GroundTruth(env, name, 0)
         mine = [(m, _model_frame(gt, mid)) for mid, m in sorted(models.items())
                 if _house_of(mid) == name]
-        per_house[name] = fidelity.score_memory(mine, objects(), seen.get(name))
+        per_house[name] = fidelity.score_memory(mine, objects(), seen.get(name),
+                                                cfg.agent.goals.belief)
         r = fidelity.pose_residuals((m for m, _ in mine), truth.get(name, {}))
         per_house[name]["pose_error_m"] = fidelity.error_summary(r)
         residuals.append(r)

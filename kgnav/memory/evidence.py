@@ -63,6 +63,7 @@ class Evidence:
     n_missed: int
     score: float
     n_rival: int = 0
+    n_weak: int = 0  # of n_views: views scored under the belief model's weak_below
 
     @property
     def mean_score(self) -> float:
@@ -84,6 +85,11 @@ class BeliefModel:
     p_detect: float = 0.6
     p_false: float = 0.05
     prior: float = -3.0
+    #: a view scored under this is a weak one (a segment under the segmenter's detection
+    #: threshold, kept as evidence: ``AgentConfig.weak_score``); 0: every view is a detection
+    weak_below: float = 0.0
+    #: the log-odds a weak view adds (a detection adds :attr:`view_weight`)
+    weak_weight: float = 1.0
 
     @property
     def view_weight(self) -> float:
@@ -99,7 +105,8 @@ DEFAULT_BELIEF = BeliefModel()
 
 def belief(ev: Evidence, model: BeliefModel = DEFAULT_BELIEF) -> float:
     """Probability that the object is real, from its views and misses."""
-    logit = model.prior + model.view_weight * ev.n_views + model.miss_weight * ev.n_missed
+    logit = (model.prior + model.view_weight * (ev.n_views - ev.n_weak)
+             + model.weak_weight * ev.n_weak + model.miss_weight * ev.n_missed)
     return 1.0 / (1.0 + math.exp(-min(max(logit, -50.0), 50.0)))
 
 
@@ -149,12 +156,14 @@ class ScanTable:
 
 def object_evidence(model: AbstractModel, objects: Iterable[str] | None = None,
                     miss_range: float = MISS_RANGE, table: ScanTable | None = None,
-                    cache: dict | None = None, stale: int = 0) -> dict[str, Evidence]:
+                    cache: dict | None = None, stale: int = 0,
+                    weak_below: float = 0.0) -> dict[str, Evidence]:
     """The :class:`Evidence` of ``objects`` (default: all), by id.
 
     ``cache`` (a dict the caller keeps) with ``stale`` > 0 reuses an object's evidence while
     its views and position are unchanged and ``table`` has grown by fewer than ``stale``
-    states since: an agent asking every step need not recount every state."""
+    states since: an agent asking every step need not recount every state. ``weak_below``:
+    views scored under this are counted as weak (``Evidence.n_weak``)."""
     g = model.graph
     ids = list(model.objects()) if objects is None else [o for o in objects if o in g]
     if table is None and ids and model.scan is not None:
@@ -172,11 +181,14 @@ def object_evidence(model: AbstractModel, objects: Iterable[str] | None = None,
                 continue
         seers = {s for s, _, k in g.in_edges(o, keys=True) if k == SEES}
         episodes = {g.nodes[s]["episode"] for s in seers}
+        weak = 0
+        if weak_below > 0:
+            weak = sum(1 for s in seers if g.edges[s, o, SEES].get("score", 1.0) < weak_below)
         missed = 0
         if table is not None:
             missed = sum(1 for s in table.covering(d["x"], d["y"], miss_range) if s not in seers)
         out[o] = Evidence(len(seers), len(episodes), missed, float(d["score"]),
-                          rivals.views(o, d))
+                          rivals.views(o, d), weak)
         if cache is not None:
             cache[o] = (n, key, out[o])
     return out
@@ -209,6 +221,6 @@ def forget(model: AbstractModel, below: float = 0.2, belief_model: BeliefModel =
     label for the same thing won: a segmenter's confusion of one object with a look-alike
     class, which persists and so is never missed). Returns how many were removed. An object
     the evidence has not yet judged (seen once, never looked at again) stays."""
-    ev = object_evidence(model)
+    ev = object_evidence(model, weak_below=belief_model.weak_below)
     return model.remove_objects(o for o, e in ev.items() if belief(e, belief_model) < below
                                 or (e.n_views and e.label_share < min_label_share))

@@ -60,6 +60,10 @@ class LearnedSegmenter:
         Segments whose mean confidence is below this are dropped (default: the weight file's
         ``score_threshold``, calibrated on train-house frames by ``kgnav train-segmenter``;
         0 keeps every segment).
+    weak_score:
+        Segments scoring at least this but under ``min_score`` come back apart, as
+        :attr:`Segmentation.weak`: too uncertain to act on, evidence for a memory that fuses
+        many views (None: not asked for).
     threads:
         CPU threads for one frame (default 1; None: torch's setting). One small frame gains
         nothing from more, and on a busy machine two threads made a frame 15–50× slower
@@ -71,7 +75,8 @@ class LearnedSegmenter:
 
     def __init__(self, weights: str | os.PathLike[str] | SegmenterWeights | None = None,
                  seed: int = 0, device: str = "cpu", min_pixels: int = 20,
-                 min_score: float | None = None, threads: int | None = 1):
+                 min_score: float | None = None, threads: int | None = 1,
+                 weak_score: float | None = None):
         w = weights if isinstance(weights, SegmenterWeights) else load_weights(weights)
         self.arch = w.arch
         self.class_names = w.classes
@@ -79,6 +84,7 @@ class LearnedSegmenter:
         self.seed = int(seed)
         self.min_pixels = int(min_pixels)
         self.min_score = float(w.score_threshold if min_score is None else min_score)
+        self.weak_score = None if weak_score is None else float(weak_score)
         self.device = resolve_device(device)
         self.threads = threads
         net = SegNet(w.arch, batchnorm=False)
@@ -121,7 +127,7 @@ class LearnedSegmenter:
         H, W = _check_rgbd(rgb, depth)
         cls, conf = self.probabilities(rgb, depth)
         return segmentation_from_classes(cls, conf, (W, H), self.min_pixels, self.class_names,
-                                         self.min_score)
+                                         self.min_score, self.weak_score)
 
 
 class ClassMapSegmenter:
@@ -165,13 +171,14 @@ class ClassMapSegmenter:
 
 def segmentation_from_classes(classes: np.ndarray, confidence: np.ndarray | None = None,
                               frame_size: tuple[int, int] | None = None, min_pixels: int = 20,
-                              class_names=OBJECT_CLASSES, min_score: float = 0.0
-                              ) -> Segmentation:
+                              class_names=OBJECT_CLASSES, min_score: float = 0.0,
+                              weak_score: float | None = None) -> Segmentation:
     """A :class:`Segmentation` of a per-pixel class map (h, w): instances are the 4-connected
     components of each class; components under ``min_pixels`` at frame resolution become
     background; a segment's score is the mean ``confidence`` of its pixels (1.0 without one),
     and segments scoring under ``min_score`` become background too. ``frame_size`` = (W, H):
-    the maps are resized (nearest) to it."""
+    the maps are resized (nearest) to it. ``weak_score``: the segments scoring at least this
+    but under ``min_score`` come back apart, as :attr:`Segmentation.weak`."""
     cls = np.asarray(classes)
     if cls.ndim != 2 or cls.dtype.kind not in "iu" or not cls.size:
         raise ValueError(f"a class map must be a non-empty 2-D integer array, got {cls.dtype} "
@@ -198,6 +205,7 @@ def segmentation_from_classes(classes: np.ndarray, confidence: np.ndarray | None
         seg_cls += [int(c)] * len(keep)
         n += len(keep)
     scores = None
+    weak = None
     if confidence is not None:
         conf = np.asarray(confidence, np.float64)
         if conf.shape != cls.shape:
@@ -206,17 +214,39 @@ def segmentation_from_classes(classes: np.ndarray, confidence: np.ndarray | None
         scores = np.round(np.bincount(inst.ravel(), weights=conf.ravel(), minlength=n + 1)
                           / np.maximum(counts, 1), 4)
         low = scores[1:] < min_score
+        if weak_score is not None:
+            weak = _kept(inst, seg_cls, scores, low & (scores[1:] >= weak_score), (W, H),
+                         class_names)
         if low.any():  # renumber the kept segments 1..m
-            lut = np.zeros(n + 1, np.int32)
-            lut[1:][~low] = np.arange(1, n + 1 - int(low.sum()))
-            inst = lut[inst]
-            seg_cls = [0, *np.asarray(seg_cls[1:])[~low].tolist()]
-            scores = np.concatenate([[0.0], scores[1:][~low]])
+            inst, seg_cls, scores = _renumbered(inst, seg_cls, scores, ~low)
+    out = _maps(inst, seg_cls, scores, (W, H), class_names)
+    if weak_score is not None:
+        out.weak = weak if weak is not None else Segmentation.from_maps(
+            np.zeros((H, W), np.int32), np.zeros((H, W), np.int32), None, class_names)
+    return out
+
+
+def _renumbered(inst, seg_cls, scores, keep):
+    """The segments where ``keep`` (one flag per segment), numbered 1..m."""
+    n = len(keep)
+    lut = np.zeros(n + 1, np.int32)
+    lut[1:][keep] = np.arange(1, int(keep.sum()) + 1)
+    return (lut[inst], [0, *np.asarray(seg_cls[1:])[keep].tolist()],
+            np.concatenate([[0.0], scores[1:][keep]]))
+
+
+def _maps(inst, seg_cls, scores, frame_size, class_names) -> Segmentation:
+    W, H = frame_size
     out_cls = np.asarray(seg_cls, np.int32)[inst]
-    if (w, h) != (W, H):
+    if inst.shape != (H, W):
         out_cls = cv2.resize(out_cls, (W, H), interpolation=cv2.INTER_NEAREST)
         inst = cv2.resize(inst, (W, H), interpolation=cv2.INTER_NEAREST)
     return Segmentation.from_maps(out_cls, inst, scores, class_names)
+
+
+def _kept(inst, seg_cls, scores, keep, frame_size, class_names) -> Segmentation:
+    """A segmentation of the segments where ``keep`` alone."""
+    return _maps(*_renumbered(inst, seg_cls, scores, keep), frame_size, class_names)
 
 
 def _check_rgbd(rgb, depth) -> tuple[int, int]:
