@@ -65,3 +65,13 @@ def models(draw, model_id: str | None = None, min_states: int = 1, max_states: i
                                                                st.integers(0, 2), st.booleans()),
                                                      max_size=3)))
     return m
+
+
+def walk_model(mid: str, n: int, seed: int, dim: int = 8) -> AbstractModel:
+    """A straight walk of ``n`` states 0.5 m apart with seeded random features (relocator
+    tests: every state its own row)."""
+    rng = np.random.default_rng(seed)
+    m = AbstractModel(feature_dim=dim, model_id=mid)
+    for i in range(n):
+        m.add_state(rng.normal(size=dim), (0.5 * i, 0.0, 0.0), step=i)
+    return m

@@ -9,17 +9,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from kgnav import AbstractModel, KgnavError, Relocator
+from kgnav import KgnavError, Relocator
 from kgnav.memory.index_file import Blob, IndexReader, write_index
 from kgnav.memory.vector_table import VectorTable, unit_rows
+from tests.strategies import walk_model
 
-
-def _walk(mid: str, n: int, seed: int, dim: int = 8) -> AbstractModel:
-    rng = np.random.default_rng(seed)
-    m = AbstractModel(feature_dim=dim, model_id=mid)
-    for i in range(n):
-        m.add_state(rng.normal(size=dim), (0.5 * i, 0.0, 0.0), step=i)
-    return m
+_walk = walk_model
 
 
 @settings(max_examples=25, deadline=None)

@@ -10,19 +10,14 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from kgnav import AbstractModel, KgnavError, ModelStore, Relocator, StoreError
+from kgnav import KgnavError, ModelStore, Relocator, StoreError
 from kgnav.memory import graphdb
-from tests.strategies import DIM, models
+from tests.strategies import DIM, models, walk_model
 
 pytest.importorskip("ladybug")
 
 
-def _walk(mid: str, n: int, seed: int, dim: int = 8) -> AbstractModel:
-    rng = np.random.default_rng(seed)
-    m = AbstractModel(feature_dim=dim, model_id=mid)
-    for i in range(n):
-        m.add_state(rng.normal(size=dim), (0.5 * i, 0.0, 0.0), step=i)
-    return m
+_walk = walk_model
 
 
 def _store(root, ms) -> ModelStore:
