@@ -450,10 +450,11 @@ class Relocator:
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Relocator:
-        """Reopen an index written by :meth:`save`. The feature rows stay in the file, mapped
-        into memory (a query reads the rows it re-ranks); the search graph is read into
-        memory. A file that is not an index, or is damaged, is a
-        :class:`~kgnav.errors.KgnavError` naming it."""
+        """Reopen an index written by :meth:`save`. With a backend that re-ranks a few rows a
+        query (``hnsw``) the feature rows stay in the file (a query reads the rows it
+        re-ranks) and only the search graph is read into memory; the exact backend, which
+        reads every row each query, reads them into memory. A file that is not an index, or
+        is damaged, is a :class:`~kgnav.errors.KgnavError` naming it."""
         path = Path(path)
         try:
             with IndexReader(path) as z:
@@ -465,7 +466,10 @@ class Relocator:
                                      f"versions {', '.join(map(str, INDEX_VERSIONS_READ))}")
                 r = cls(threshold=meta["threshold"], backend=meta["backend"],
                         n_candidates=meta["n_candidates"], backend_params=meta["backend_params"])
-                vectors, owner = _rows_of(z), z.array("owner_model")
+                # a backend that reads every row each query keeps them in memory; one that
+                # re-ranks a few leaves them in the file
+                vectors = _rows_of(z, in_file=not BACKENDS[r.backend].scans_all)
+                owner = z.array("owner_model")
                 model_ids, state_ids = z.array("model_ids").tolist(), z.array("state_ids").tolist()
                 state = {k[len("backend."):]: z.array(k) for k in z.arrays
                          if k.startswith("backend.")}
@@ -537,10 +541,10 @@ class Relocator:
         return want
 
 
-def _rows_of(z: IndexReader) -> VectorTable | None:
+def _rows_of(z: IndexReader, in_file: bool = True) -> VectorTable | None:
     """The feature rows of an index file: left in the file when they lie there as plain
-    float32 rows, else read; None when they are not a 2-D float32 array."""
-    where = z.locate("vectors")
+    float32 rows (and ``in_file``), else read; None when they are not a 2-D float32 array."""
+    where = z.locate("vectors") if in_file else None
     if where is not None:
         offset, shape, dtype, fortran = where
         if dtype != np.float32 or len(shape) != 2:
