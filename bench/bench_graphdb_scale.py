@@ -10,8 +10,9 @@ What it does, timing each step:
 2. ``kgnav store convert`` of that directory into a LadybugDB database (the command itself);
 3. fits the relocator from the database in a fresh process (``Relocator.open``: features streamed
    from the ``State`` table, no model loaded; the index is saved beside the database), for the
-   exact and the HNSW backend, and reports the process's peak memory added by the fit against the
-   raw feature bytes (target at most 1.5x);
+   exact and the HNSW backend (which keeps its rows in a temporary file beside the index while
+   it fits), and reports the process's peak memory added by the fit against the raw feature
+   bytes (target at most 1.5x);
 4. reopens each saved index in a fresh process and times relocation queries (target p50 < 2 ms;
    recall@1 of HNSW against exact);
 5. times every store-wide question of :mod:`kgnav.memory.store_query` on the database, each call
