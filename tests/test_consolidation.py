@@ -173,3 +173,24 @@ def test_the_benchmark_store_follows_joins_even_of_a_model_never_saved(tmp_path,
     lines = [json.loads(x) for x in (tmp_path / "episodes.jsonl").read_text().splitlines()]
     joined = [j["model"] for r in lines for j in r.get("joins", ())]
     assert summary["si"]["joins"] == len(joined) > 0
+
+
+def test_a_memory_leaves_a_model_out_for_a_block_and_takes_it_back_unchanged():
+    from kgnav.agent.memory import Memory
+
+    a = _model("a-e000", ROOM_A, WALK)
+    b = _model("a-e001", ROOM_A, WALK, frame=(1.0, 0.0, 0.0))
+    mem = Memory({"a-e000": a, "a-e001": b}, threshold=0.05)
+    geo = mem.geometry("a-e000")
+    with mem.without("a-e000") as m:
+        assert list(m.models) == ["a-e001"]
+        assert {x.model_id for x in m.nearest(unit(0), 5)} == {"a-e001"}
+    assert sorted(mem.models) == ["a-e000", "a-e001"]
+    assert {x.model_id for x in mem.nearest(unit(0), 5)} == {"a-e000", "a-e001"}
+    assert mem.geometry("a-e000") is geo  # not rebuilt: the model did not change
+    with_pool = find_join(mem.models, "a-e001", threshold=0.05, memory=mem)
+    alone = find_join(mem.models, "a-e001", threshold=0.05)
+    assert with_pool == alone and with_pool is not None
+    mem.update(_model("a-e000", ROOM_A, WALK[:4]))  # a changed model: indexed and mapped anew
+    assert mem.models["a-e000"].n_states == 4 and mem.geometry("a-e000") is not geo
+    assert mem.drop("a-e001") is b and list(mem.models) == ["a-e000"]

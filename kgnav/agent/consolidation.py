@@ -52,30 +52,44 @@ class Join:
 
 
 def find_join(models: dict[str, AbstractModel], model_id: str, *, threshold: float,
-              config=None) -> Join | None:
+              config=None, memory=None) -> Join | None:
     """Whether the stored model ``model_id`` verifiably fits another of ``models`` as a
     whole (see the module docstring): the best such fit, as a :class:`Join` of ``model_id``
     into that model, or None. ``threshold``: the relocation feature-distance threshold;
     ``config``: a :class:`~kgnav.agent.relocation.RelocationConfig` (its verification
-    settings; the whole-model check is always made)."""
+    settings; the whole-model check is always made). ``memory``: a
+    :class:`~kgnav.agent.memory.Memory` over ``models`` to reuse (its relocator and the
+    occupancy it has built; ``model_id`` is taken out of it while judged and put back), else
+    one is built."""
     from kgnav.agent.memory import Memory
     from kgnav.agent.relocation import Relocalizer, RelocationConfig
 
     model = models[model_id]
-    others = {k: m for k, m in models.items() if k != model_id
-              and m.feature_dim == model.feature_dim and m.extractor == model.extractor}
-    if not others or model.scan is None or model.n_states == 0:
+    kind = (model.feature_dim, model.extractor)
+    if model.scan is None or model.n_states == 0:
         return None
     # stored models are already as straight as their own loop closures made them: no bend
     cfg = replace(config or RelocationConfig(), merge_check=True, late_match=True, drift=None)
     if not cfg.geometry:
         return None  # a feature match alone never joins two memories
-    rel = Relocalizer(Memory(others, threshold=threshold), cfg)
+    if memory is None:
+        others = {k: m for k, m in models.items()
+                  if k != model_id and (m.feature_dim, m.extractor) == kind}
+        if not others:
+            return None
+        return _judge(Relocalizer(Memory(others, threshold=threshold), cfg), model)
+    if len(memory.models) < 2:
+        return None
+    with memory.without(model_id):
+        return _judge(Relocalizer(memory, cfg), model)
+
+
+def _judge(rel, model: AbstractModel) -> Join | None:
     rel.take_model(model)
     r = rel.mergeable(model)
     if r is None:
         return None
-    return Join(model_id, r.model_id, tuple(float(v) for v in r.transform),
+    return Join(model.model_id, r.model_id, tuple(float(v) for v in r.transform),
                 float(r.inliers or 0.0), float(r.conflicts or 0.0), int(r.points))
 
 
@@ -86,14 +100,26 @@ def consolidate(models: dict[str, AbstractModel], changed: Iterable[str], *, thr
     (:func:`find_join`), again with the joined model until it fits none; ``models`` (id ->
     model) changes in place. The smaller of two (fewer states) is folded into the larger,
     which keeps its id and frame. Objects are then forgotten as the memory update forgets
-    them (``forget_below``, ``forget_label_share``). Returns the joins made, in order."""
+    them (``forget_below``, ``forget_label_share``). Returns the joins made, in order.
+
+    One relocator and one occupancy cache serve every model judged (the models of the first
+    changed one's extractor and feature size; another kind is judged on its own)."""
+    from kgnav.agent.memory import Memory
+
     joins: list[Join] = []
     queue = [m for m in changed if m in models]
+    if not queue:
+        return joins
+    kind = (models[queue[0]].feature_dim, models[queue[0]].extractor)
+    pool = Memory({k: m for k, m in models.items() if (m.feature_dim, m.extractor) == kind},
+                  threshold=threshold)
     while queue:
         mid = queue.pop(0)
         if mid not in models:
             continue
-        j = find_join(models, mid, threshold=threshold, config=config)
+        same = (models[mid].feature_dim, models[mid].extractor) == kind
+        j = find_join(models, mid, threshold=threshold, config=config,
+                      memory=pool if same else None)
         if j is None:
             continue
         small, big = models[j.model_id], models[j.into]
@@ -107,6 +133,9 @@ def consolidate(models: dict[str, AbstractModel], changed: Iterable[str], *, thr
             forget(joined, forget_below, min_label_share=forget_label_share)
         del models[j.model_id]
         models[j.into] = joined
+        if same:  # the pool follows: the folded model gone, the joined one re-indexed
+            pool.drop(j.model_id)
+            pool.update(joined)
         joins.append(j)
         queue.insert(0, j.into)  # the joined model may now fit yet another
     return joins

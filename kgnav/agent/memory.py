@@ -11,6 +11,7 @@ and seed the episode map.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from contextlib import contextmanager
 
 from kgnav.memory.model import AbstractModel
 from kgnav.memory.relocator import Match, Relocator
@@ -56,3 +57,29 @@ class Memory:
 
             self._geometry[model_id] = StoredGeometry.of(self.models[model_id])
         return self._geometry[model_id]
+
+    def update(self, model: AbstractModel) -> None:
+        """Take ``model`` in (replacing a model of its id): indexed again, its occupancy
+        rebuilt on next use. A memory shared by an episode's agents must not change; this is
+        for the memory update between episodes (:mod:`kgnav.agent.consolidation`)."""
+        self.models[model.model_id] = model
+        self.relocator.add(model)
+        self._geometry.pop(model.model_id, None)
+
+    @contextmanager
+    def without(self, model_id: str):
+        """The memory with model ``model_id`` left out for the block (no relocation into it),
+        then put back as it was (its occupancy is kept: the model did not change)."""
+        model = self.models.pop(model_id)
+        self.relocator.remove(model_id)
+        try:
+            yield self
+        finally:
+            self.models[model_id] = model
+            self.relocator.add(model)
+
+    def drop(self, model_id: str) -> AbstractModel | None:
+        """Take the model ``model_id`` out (None if absent); see :meth:`update`."""
+        self.relocator.remove(model_id)
+        self._geometry.pop(model_id, None)
+        return self.models.pop(model_id, None)

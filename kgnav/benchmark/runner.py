@@ -781,27 +781,25 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
                     Path(path).parent.mkdir(parents=True, exist_ok=True)
                     Path(path).write_bytes(data)
             if variant.learns:
+                updated = []  # (outcome, the model its memory update changed)
                 for o in outcomes:  # merges in scene order: the same with any worker count
                     changed, gone = absorb(models, o, cfg.forget_below,
                                            cfg.forget_label_share)
                     seen.setdefault(o.record["scene"], set()).update(o.seen)
                     truth.setdefault(o.record["scene"], {}).update(o.truth)
-                    if cfg.consolidate:
-                        joins = consolidate(models, [changed], threshold=threshold,
-                                            config=cfg.agent.relocation,
-                                            forget_below=cfg.forget_below,
-                                            forget_label_share=cfg.forget_label_share)
-                        if joins:
-                            o.record["joins"] = [_join_fields(cfg, j) for j in joins]
-                            gone = [*gone, *(j.model_id for j in joins)]
-                            changed = joins[-1].into
-                    if store is not None:
-                        store.save(models[changed])
-                        stored.add(changed)
-                        for mid in gone:
-                            if mid in stored:  # (a model joined before it was ever saved)
-                                store.delete(mid)
-                                stored.discard(mid)
+                    updated.append((o, changed))
+                    _write(store, stored, models, [changed], gone)
+                if cfg.consolidate and updated:
+                    joins = consolidate(models, [c for _, c in updated], threshold=threshold,
+                                        config=cfg.agent.relocation,
+                                        forget_below=cfg.forget_below,
+                                        forget_label_share=cfg.forget_label_share)
+                    for j in joins:  # on the episode whose update changed one of the two
+                        o = next((o for o, c in updated if c in (j.model_id, j.into)),
+                                 updated[-1][0])
+                        o.record.setdefault("joins", []).append(_join_fields(cfg, j))
+                    _write(store, stored, models, sorted({j.into for j in joins} & set(models)),
+                           [j.model_id for j in joins])
             for r in range(r0, min(r0 + step, rounds)):  # records and .part, round by round
                 round_records = [o.record for o in outcomes if o.record["episode"] == r]
                 records.extend(round_records)
@@ -848,6 +846,21 @@ def _topdown_path(cfg: EvalConfig, out: Path | None, variant: Variant, scene: in
     if out is None or cfg.show is None or (scene, episode) != tuple(cfg.show):
         return None
     return str(out / "topdown" / f"{variant.name}_{scene:02d}_e{episode:03d}.png")
+
+
+def _write(store: ModelStore | None, stored: set[str], models: dict[str, AbstractModel],
+           changed: list[str], gone: list[str]) -> None:
+    """Keep the run's store as the memory: ``changed`` models saved, ``gone`` ones deleted
+    (those never saved, joined in the update that made them, are not there to delete)."""
+    if store is None:
+        return
+    for mid in changed:
+        store.save(models[mid])
+        stored.add(mid)
+    for mid in gone:
+        if mid in stored:
+            store.delete(mid)
+            stored.discard(mid)
 
 
 def _join_fields(cfg: EvalConfig, j: Join) -> dict:
