@@ -306,12 +306,13 @@ def test_with_a_memory_that_saw_everything_the_policy_searches_where_it_looked_o
         return m
 
     m = world()
-    pol = FrontierPolicy()
+    pol = FrontierPolicy(search_memory=True)
     cell = pol.select(m, (0.0, 0.0, 0.0), "chair", FMMPlanner())
     assert pol.source_ == "unsearched"
     assert cell is not None and m.to_xy(*cell)[0] > 0.0 and m.searched_any()[cell]
     assert frontiers(m, searched=True)[0][cell] > 0
-    off = FrontierPolicy(search_memory=False)
+    off = FrontierPolicy()  # the default: space nobody has seen, then the episode's own
+    assert not off.search_memory
     cell = off.select(world(), (0.0, 0.0, 0.0), "chair", FMMPlanner())
     assert off.source_ == "episode" and cell is not None
     m = world()

@@ -22,13 +22,22 @@ from kgnav.sim.dynamics import (
     OdometryModel,
     compose,
 )
-from kgnav.sim.noise import DEFAULT_NOISE, NOISE_MODELS, NoiseSpec, locobot, parse_noise
+from kgnav.sim.noise import (
+    BENCHMARK_NOISE,
+    DEFAULT_NOISE,
+    NOISE_MODELS,
+    NoiseSpec,
+    locobot,
+    parse_noise,
+)
 from tests.test_sim_env import corridor_env
 
 
 # --------------------------------------------------------------------------- parsing
 def test_presets_parse():
-    assert DEFAULT_NOISE == "none" and {"none", "locobot"} <= set(NOISE_MODELS)
+    # an environment is exact unless asked; the benchmark runs a real robot's noise
+    assert DEFAULT_NOISE == "none" and BENCHMARK_NOISE == "locobot"
+    assert {"none", "locobot"} <= set(NOISE_MODELS)
     none = parse_noise("none")
     assert none == NoiseSpec() and not none.active and parse_noise(None) == none
     loco = parse_noise("locobot")
@@ -255,3 +264,26 @@ def test_eval_records_the_noise_by_name_and_parameters(cli, tmp_path):
     assert cfg["noise_model"]["actuation"]["lateral_sigma"] == pytest.approx(
         0.5 * math.sqrt(0.023))
     assert cfg["noise_model"]["depth_per_m"] == 0.01
+
+
+def test_the_benchmark_runs_locobot_noise_unless_told_otherwise():
+    from kgnav.benchmark.runner import EvalConfig
+
+    assert EvalConfig(split="val-small").noise == "locobot"
+    assert EvalConfig(split="val-small").noise_spec.odometry.active
+    assert EvalConfig(split="val-small", noise="none").noise == "none"
+    # the older levels name the whole noise: no LoCoBot noise beside them
+    old = EvalConfig(split="val-small", actuation_noise=1.0)
+    assert old.noise == "none" and old.noise_spec.name == "custom"
+    # an environment asked for nothing stays exact
+    assert EnvOptions().noise is None and parse_noise(EnvOptions().noise) == NoiseSpec()
+
+
+@pytest.mark.parametrize("args,noise", [((), "locobot"), (("--preset", "paper"), "none"),
+                                        (("--preset", "paper", "--noise", "locobot"), "locobot"),
+                                        (("--noise", "none"), "none")])
+def test_eval_cli_noise_default_and_the_papers_noise_free_task(cli, tmp_path, args, noise):
+    code, out, err = cli("eval", "--split", "val-small", "--variants", "oracle", "--scenes", "1",
+                         "--episodes", "1", *args, "--out", tmp_path / "n", "--quiet")
+    assert code == 0, err
+    assert json.loads((tmp_path / "n" / "config.json").read_text())["noise"] == noise

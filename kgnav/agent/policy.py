@@ -103,12 +103,15 @@ class FrontierPolicy:
     Cost of a frontier cell = geodesic distance from the agent (m) − ``size_weight`` × its
     cluster's size (cells), ignoring cells closer than ``min_distance`` (they would be reached
     before the view changes). Deterministic: ties go to the lowest cell index.
+    ``search_memory``: after a relocation, prefer the frontiers of space nobody has searched
+    from close range over those of space nobody has seen (off by default: it did not help on
+    ``train``, docs/agent.md).
     """
 
     name = "frontier"
 
     def __init__(self, size_weight: float = 0.01, min_distance: float = 1.0,
-                 min_cells: int = 6, search_memory: bool = True):
+                 min_cells: int = 6, search_memory: bool = False):
         self.size_weight = float(size_weight)
         self.min_distance = float(min_distance)
         self.min_cells = int(min_cells)
@@ -194,7 +197,7 @@ class SemanticFrontierPolicy(FrontierPolicy):
 
     def __init__(self, size_weight: float = 0.01, min_distance: float = 1.0,
                  min_cells: int = 6, weight: float = 4.0, radius: float = 2.0,
-                 search_memory: bool = True):
+                 search_memory: bool = False):
         super().__init__(size_weight, min_distance, min_cells, search_memory)
         self.weight = float(weight)
         self.radius = float(radius)

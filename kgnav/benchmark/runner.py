@@ -72,7 +72,7 @@ from kgnav.memory.model import AbstractModel
 from kgnav.memory.posegraph import DriftModel
 from kgnav.memory.store import ModelStore
 from kgnav.sim.episodes import SPLITS
-from kgnav.sim.noise import NoiseSpec, parse_noise, resolve_noise
+from kgnav.sim.noise import BENCHMARK_NOISE, NoiseSpec, parse_noise, resolve_noise
 
 
 @dataclass(frozen=True)
@@ -84,9 +84,10 @@ class EvalConfig:
     per scene (None: the split's default, or all of a directory's); ``threshold``: relocation
     cosine distance (None: the extractor's calibrated value); ``noise``: the environment's
     motion, pose-sensor and depth noise by spec (:mod:`kgnav.sim.noise`: ``"none"``,
-    ``"locobot"``, ``"locobot,depth=0.01"``, ...; None: :data:`~kgnav.sim.noise.DEFAULT_NOISE`,
-    no noise, as in ObjectNav); ``actuation_noise`` / ``odometry_noise``: the older generic
-    levels instead.
+    ``"locobot"``, ``"locobot,depth=0.01"``, ...; None: :data:`~kgnav.sim.noise.BENCHMARK_NOISE`,
+    a LoCoBot's motion and wheel odometry; ``"none"``: the noise-free ObjectNav task);
+    ``actuation_noise`` / ``odometry_noise``: the older generic levels instead (then None
+    means no other noise).
     ``workers``, ``engine`` and ``address`` (:data:`EXECUTION`) say how to run it, never
     what comes out: ``engine`` ``local`` (``workers`` processes) or ``ray`` (a Ray instance
     with ``workers`` CPUs, or the cluster at ``address``)."""
@@ -107,7 +108,7 @@ class EvalConfig:
     max_steps: int = 500  # per episode (the task's 500; lower only for quick checks)
     actuation_noise: float = 0.0
     odometry_noise: float = 0.0
-    noise: str | None = None  # a noise spec (kgnav.sim.noise); None: DEFAULT_NOISE
+    noise: str | None = None  # a noise spec (kgnav.sim.noise); None: BENCHMARK_NOISE
     # with a drifting pose sensor, bend each episode onto the model it merges into by its
     # loop closures (kgnav.memory.posegraph; docs/drift.md); off: one rigid transform
     drift_correction: bool = True
@@ -135,6 +136,10 @@ class EvalConfig:
             raise KgnavError(f"unknown split {self.split!r} (known: {', '.join(SPLITS)})")
         if self.actuation_noise < 0 or self.odometry_noise < 0:
             raise KgnavError("noise levels must be >= 0")
+        if self.noise is None:
+            # the older levels name the whole noise themselves
+            levels = self.actuation_noise or self.odometry_noise
+            object.__setattr__(self, "noise", "none" if levels else BENCHMARK_NOISE)
         # canonical, so that config.json names it and equal settings compare equal
         object.__setattr__(self, "noise", parse_noise(self.noise).text)
         resolve_noise(self.noise, self.actuation_noise, self.odometry_noise)  # both: an error

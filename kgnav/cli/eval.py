@@ -119,14 +119,14 @@ def _noise(ctx, param, value: str | None) -> str | None:
 @click.option("--show", callback=_show, default=None, metavar="SCENE:EPISODE",
               help="Draw this episode from above for every variant (default: 0:LAST).")
 @click.option("--noise", callback=_noise, default=None, metavar="SPEC",
-              help="Motion, pose-sensor and depth noise: none (the default, as in ObjectNav); "
-                   "locobot (a LoCoBot's motion, fitted on the real robot as in habitat-sim, "
-                   "and wheel odometry that drifts with distance), with optional ,scale=K "
+              help="Motion, pose-sensor and depth noise: locobot (the default: a LoCoBot's "
+                   "motion, fitted on the real robot as in habitat-sim, and wheel odometry that "
+                   "drifts with distance; none with --preset paper), with optional ,scale=K "
                    "(every noise times K), ,slip=F (share of a bump's blocked length the "
                    "odometry reports; 0: a base with a bumper) and ,depth=S (S m of depth "
                    "noise per metre); or actuation=K,odometry=S (K scales Gaussian 2.5 cm / 1 cm / "
-                   "1 deg per move and 2 deg per turn; S m and S deg of pose error per step). "
-                   "See docs/benchmark.md.")
+                   "1 deg per move and 2 deg per turn; S m and S deg of pose error per step); "
+                   "or none (the noise-free ObjectNav task). See docs/benchmark.md.")
 @click.option("--drift-correction/--no-drift-correction", default=True, show_default=True,
               help="With a drifting pose sensor (--noise), bend each episode onto the model it "
                    "merges into by its loop closures (a GTSAM pose graph; docs/drift.md).")
@@ -137,7 +137,7 @@ def _noise(ctx, param, value: str | None) -> str | None:
               show_default=True,
               help="Agent settings: default (verified relocation, remembered geometry, "
                    "evidence-weighted goals, close-range confirmation, memory consolidation) "
-                   "or the paper's own.")
+                   "or the paper's own (and its noise-free task unless --noise says).")
 @click.option("--policy", default=None, metavar="NAME",
               help="Global exploration policy of ans and si: frontier (their default), ppo, "
                    "ppo-semantic, random-goal, ...; sem+si keeps semantic unless "
@@ -192,7 +192,8 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
                      workers=workers, engine=engine, address=address, segmenter=segmenter,
                      extractor=extractor, threshold=threshold, seed=seed,
                      pre_explore_steps=pre_explore_steps,
-                     show=show, noise=noise, drift_correction=drift_correction,
+                     show=show, drift_correction=drift_correction,
+                     noise="none" if noise is None and preset == "paper" else noise,
                      consolidate=(preset == "default") if consolidate is None else consolidate,
                      agent=PRESETS[preset](), forget_below=0.2 if preset == "default" else 0.0,
                      forget_label_share=0.5 if preset == "default" else 0.0,
