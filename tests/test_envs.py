@@ -31,6 +31,7 @@ from kgnav.envs import (
     EnvSpec,
     EnvSpecError,
     check_observation,
+    env_applies_noise,
     make_env,
     register_env,
 )
@@ -625,6 +626,21 @@ def test_cli_eval_takes_an_environment_by_module_path(tmp_path, capsys):
     (rec,) = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
     assert rec["scene"] == "tests.test_envs_GridSuite-00" and rec["goal"] == "crate"
     assert rec["spl"] is None and "–" in stdout  # missing metrics shown as a dash
+
+
+def test_noise_only_for_environments_that_apply_it(capsys):
+    """The benchmark's default noise goes to environments that say they apply it; one that
+    does not is run (and recorded) without noise, and asking it for noise is one line."""
+    assert env_applies_noise("kgnav") and not env_applies_noise("grid-test")
+    assert EvalConfig(split="val-small").noise == "locobot"
+    assert EvalConfig(env="grid-test").noise == "none"
+    with pytest.raises(KgnavError, match="'grid-test' does not apply noise"):
+        EvalConfig(env="grid-test", noise="locobot")
+    with pytest.raises(KgnavError, match="does not apply noise"):
+        EvalConfig(env="grid-test", actuation_noise=1.0)
+    code, _out, err = _kgnav(["eval", "--env", "tests.test_envs:GridSuite", "--noise", "locobot",
+                              "--quiet"], capsys)
+    assert code != 0 and "does not apply noise" in err and len(err.strip().splitlines()) == 1
 
 
 @pytest.mark.parametrize(("env", "expected"), [

@@ -328,3 +328,52 @@ def test_the_benchmark_corrects_drift_only_with_a_drifting_pose_sensor(noise, on
                      workers=1)
     agent = _make_agent(cfg, VARIANTS["si"], _env(cfg, 0), _Memory({}), "opencv-gist")
     assert (agent.config.relocation.drift is not None) is drifts
+
+
+# --------------------------------------------------------------------------- on itself
+def _alone(bias: float, gap: int, laps: int = 3):
+    """An episode with no memory to close loops on, driving ``laps`` times round room A with a
+    drifting odometry: the first in a house."""
+    truth = tour(laps)
+    odo = _odometry(truth, bias)
+    rel = Relocalizer(Memory({}, threshold=0.05),
+                      RelocationConfig(drift=DriftModel(), self_closure_gap=gap))
+    episode = AbstractModel(DIM, model_id="a-e000", extractor="toy", scan=SCAN)
+    for k, (p, w) in enumerate(zip(odo, truth, strict=True)):
+        s = AbstractState(NO_MATCH, p, (), cast(ROOM_A, w))
+        episode.add_state(NO_MATCH, p, (), step=k, ranges=s.ranges)
+        rel.observe(k, s, SCAN)
+    return truth, episode, rel
+
+
+def test_an_episode_stored_as_a_new_model_closes_loops_on_itself():
+    """Each lap comes back to where the first one mapped: those stretches are loop closures on
+    the episode's own earlier map, and the corrected chain is nearer the truth than the
+    odometry, most where the drift had grown (the start anchors the frame)."""
+    truth, episode, rel = _alone(math.radians(0.15), gap=40)
+    assert rel.mergeable(episode) is None  # nothing to merge into
+    fix = rel.close_own_loops()
+    assert fix is not None and rel.correction is fix
+    assert rel.decisions["own loop closure kept"] >= 3
+    poses = rel.corrected_poses(episode, (0.0, 0.0, 0.0))
+    g = episode.graph
+    states = sorted(episode.states(), key=lambda s: g.nodes[s]["step"])
+    true = [truth[g.nodes[s]["step"]] for s in states]
+    before = _errors([(g.nodes[s]["x"], g.nodes[s]["y"], g.nodes[s]["theta"]) for s in states],
+                     true)
+    after = _errors([poses[s] for s in states], true)
+    assert np.percentile(before, 95) > 0.4  # the odometry drifted
+    assert np.median(after) < 0.5 * np.median(before)
+    assert np.percentile(after, 95) < 0.75 * np.percentile(before, 95)
+    # the closures are recorded by state; the frame's own anchor is not one
+    closures = rel.closure_states(episode)
+    assert len(closures) == len(fix.kept) - 1 + len(fix.rejected)
+
+
+def test_no_own_loop_closures_when_off_or_without_drift():
+    _, episode, rel = _alone(math.radians(0.6), gap=0)
+    assert rel.close_own_loops() is None and rel.correction is None
+    assert rel.corrected_poses(episode, (0.0, 0.0, 0.0)) == {}
+    truth, episode, rel = _alone(0.0, gap=40, laps=1)
+    rel.config = RelocationConfig(drift=None, self_closure_gap=40)
+    assert rel.close_own_loops() is None

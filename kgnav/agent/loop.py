@@ -409,15 +409,18 @@ class ObjectNavAgent:
         if self.relocalizer is None:
             return None
         r = self.relocalizer.mergeable(self.model_)
-        if r is not None:
-            # drift corrected by the episode's loop closures (only with a drift model set)
-            poses = self.relocalizer.corrected_poses(self.model_, r.transform)
-            if poses:
-                bend(self.model_, poses)
-                mid = self.model_.model_id
-                self.model_.add_loop_closures(
-                    {"state": f"{mid}/{sid}", "episode": self.episode, "kept": kept}
-                    for sid, kept in self.relocalizer.closure_states(self.model_))
+        if r is None:
+            # stored as a new model: its drift corrected by its loops on itself, if any
+            self.relocalizer.close_own_loops()
+        # drift corrected by the episode's loop closures (only with a drift model set)
+        T = r.transform if r is not None else (0.0, 0.0, 0.0)
+        poses = self.relocalizer.corrected_poses(self.model_, T)
+        if poses:
+            bend(self.model_, poses)
+            mid = self.model_.model_id
+            self.model_.add_loop_closures(
+                {"state": f"{mid}/{sid}", "episode": self.episode, "kept": kept}
+                for sid, kept in self.relocalizer.closure_states(self.model_))
         return r
 
     # ------------------------------------------------------------------ 3. reasoning

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter, deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -35,6 +35,8 @@ from kgnav.common import se2
 from kgnav.memory.evidence import MISS_RANGE
 from kgnav.memory.geometry import OccupancyGrid, occupancy_from_scans
 from kgnav.memory.posegraph import Anchor, Correction, DriftModel, correct
+
+_START = "episode start"  # the anchor holding an episode corrected on itself in its frame
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,14 @@ class RelocationConfig:
     # (None: odometry trusted as exact, one rigid transform, as without noise)
     drift: DriftModel | None = None
     closure_window: int = 20  # profiles per loop-closure stretch
+    # with a drift model, an episode stored as a new model is first corrected against itself:
+    # a stretch that comes back to space the episode mapped at least this many profiles
+    # earlier is a loop closure on that earlier map (0: off)
+    self_closure_gap: int = 0
+    # how precisely such a closure places the stretch (m, degrees): looser than a closure on a
+    # stored model, since the earlier map is drawn with the same odometry and the aligner's
+    # noise would otherwise outweigh an odometry that is good over short stretches
+    self_closure_sigma: tuple[float, float] = (0.2, 8.0)
 
 
 @dataclass
@@ -597,6 +607,67 @@ class Relocalizer:
         self.decisions["loop closure rejected"] += len(fix.rejected)
         return fix
 
+    def close_own_loops(self) -> Correction | None:
+        """The episode's pose chain corrected against itself, for an episode stored as a new
+        model (the first in a house has nothing else to close loops on, and its drift would
+        bend the memory for good): each ``closure_window`` stretch is aligned to the map of the
+        profiles it follows by at least ``self_closure_gap`` (rebuilt every two stretches), and
+        one that verifies on that map is a loop closure, as :meth:`close_loops` makes them on a
+        stored model's; the start anchors the frame. Inconsistent closures are rejected. None
+        without a closure the odometry does not already explain (the chain as it is); the
+        correction is kept in :attr:`correction` (episode frame)."""
+        c = self.config
+        w = max(int(c.closure_window), 1)
+        gap = int(c.self_closure_gap)
+        n = len(self._all)
+        self.correction = None
+        if c.drift is None or gap <= 0 or n < gap + w:
+            return None
+        chain = [tuple(float(v) for v in p) for p, _, _ in self._all]
+        anchors = [Anchor(0, chain[0], _START)]
+        geo, cut = None, -1
+        for start in range(gap, n, w):
+            stretch = self._all[start:start + w]
+            if len(stretch) < max(w // 2, 1):
+                break
+            want = ((start - gap) // (2 * w)) * 2 * w + w  # profiles of the earlier map
+            if want != cut:
+                cut = want
+                early = self._all[:cut]
+                grid = occupancy_from_scans(early[0][2], [p for p, _, _ in early],
+                                            [r for _, r, _ in early], near_range=MISS_RANGE)
+                geo = StoredGeometry(grid)
+            if geo.grad_x is None:
+                continue
+            ends, fans = self._episode_geometry(stretch)
+            if len(ends) == 0:
+                continue
+            # from the odometry itself (no transform): one closure gone astray does not
+            # lead the next (on train this was truer than starting from the last closure)
+            Ta = self._align(geo, ends, (0.0, 0.0, 0.0))
+            cx, cy = ends.mean(axis=0)
+            if (math.dist(se2.apply_to_point(Ta, cx, cy), (cx, cy)) > c.max_correction[0]
+                    or abs(se2.wrap_angle(Ta[2])) > math.radians(c.max_correction[1])):
+                self.decisions["own loop closure refused: alignment wandered"] += 1
+                continue
+            v = self._judge(geo, ends, fans, Ta)
+            if not v.ok:
+                continue  # most stretches see new space: not counted
+            mid = start + len(stretch) // 2
+            anchors.append(Anchor(mid, se2.compose(Ta, chain[mid]), f"step {self._steps[mid]}"))
+        if len(anchors) < 2:
+            return None
+        sxy, sth = c.self_closure_sigma
+        drift = replace(c.drift, anchor_xy=float(sxy), anchor_theta=math.radians(sth))
+        fix = correct(chain, anchors, drift)
+        if fix is None or len(fix.kept) < 2:
+            self.decisions["own loop closures inconsistent"] += 1
+            return None
+        self.decisions["own loop closure kept"] += len(fix.kept) - 1
+        self.decisions["own loop closure rejected"] += len(fix.rejected)
+        self.correction = fix
+        return fix
+
     def closure_states(self, episode) -> list[tuple[str, bool]]:
         """The ``episode`` model's states the :attr:`correction`'s loop closures placed, each
         with whether the optimisation kept it (empty without a correction)."""
@@ -608,6 +679,8 @@ class Relocalizer:
         out = []
         for kept, anchors in ((True, fix.kept), (False, fix.rejected)):
             for a in anchors:
+                if a.source == _START:
+                    continue  # the frame's anchor, not a loop closure
                 k = int(np.abs(steps - self._steps[a.node]).argmin())
                 out.append((ids[k], kept))
         return out

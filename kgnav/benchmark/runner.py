@@ -61,6 +61,7 @@ from kgnav.envs import (
     NavEnv,
     check_env,
     check_observation,
+    env_applies_noise,
     env_weights,
     find_env,
     make_env,
@@ -85,7 +86,9 @@ class EvalConfig:
     cosine distance (None: the extractor's calibrated value); ``noise``: the environment's
     motion, pose-sensor and depth noise by spec (:mod:`kgnav.sim.noise`: ``"none"``,
     ``"locobot"``, ``"locobot,depth=0.01"``, ...; None: :data:`~kgnav.sim.noise.BENCHMARK_NOISE`,
-    a LoCoBot's motion and wheel odometry; ``"none"``: the noise-free ObjectNav task);
+    a LoCoBot's motion and wheel odometry, where the environment applies noise
+    (:func:`~kgnav.envs.env_applies_noise`), else none; ``"none"``: the noise-free ObjectNav
+    task);
     ``actuation_noise`` / ``odometry_noise``: the older generic levels instead (then None
     means no other noise).
     ``workers``, ``engine`` and ``address`` (:data:`EXECUTION`) say how to run it, never
@@ -136,13 +139,20 @@ class EvalConfig:
             raise KgnavError(f"unknown split {self.split!r} (known: {', '.join(SPLITS)})")
         if self.actuation_noise < 0 or self.odometry_noise < 0:
             raise KgnavError("noise levels must be >= 0")
+        applies = env_applies_noise(self.env)
         if self.noise is None:
-            # the older levels name the whole noise themselves
+            # the older levels name the whole noise themselves; an environment that does not
+            # apply noise is run (and recorded) without
             levels = self.actuation_noise or self.odometry_noise
-            object.__setattr__(self, "noise", "none" if levels else BENCHMARK_NOISE)
+            object.__setattr__(self, "noise",
+                               "none" if levels or not applies else BENCHMARK_NOISE)
         # canonical, so that config.json names it and equal settings compare equal
         object.__setattr__(self, "noise", parse_noise(self.noise).text)
-        resolve_noise(self.noise, self.actuation_noise, self.odometry_noise)  # both: an error
+        # both a named model and levels: an error
+        if resolve_noise(self.noise, self.actuation_noise, self.odometry_noise).active \
+                and not applies:
+            raise KgnavError(f"environment {self.env!r} does not apply noise (its factory has "
+                             f"no applies_noise = True): run it with --noise none")
         for v in self.variants:
             if v not in VARIANTS:
                 raise KgnavError(f"unknown variant {v!r} (known: {', '.join(VARIANTS)})")

@@ -21,6 +21,9 @@ class KgnavScenes:
     """The houses of a built-in split (``options.split``) or a directory written by
     ``kgnav scenes generate`` (``options.scenes_dir``)."""
 
+    #: It applies the motion, pose-sensor and depth noise ``options.noise`` asks for.
+    applies_noise = True
+
     def __init__(self, options: EnvOptions):
         resolve_noise(options.noise, options.actuation_noise,
                       options.odometry_noise)  # a bad spec: one line now, not in a worker

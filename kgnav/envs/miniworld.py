@@ -75,6 +75,8 @@ class MiniWorldHouses:
     #: The learned segmenter trained on MiniWorld's frames (``kgnav/weights/``; rebuilt by
     #: ``kgnav train-segmenter --env miniworld --steps 6000 --out FILE``, docs/segmenter.md).
     default_weights = {"segmenter": "segmenter-miniworld.npz"}
+    #: It applies the motion, pose-sensor and depth noise ``options.noise`` asks for.
+    applies_noise = True
 
     def __init__(self, options: EnvOptions):
         if options.scenes_dir is not None:

@@ -39,8 +39,9 @@ class EnvOptions:
     ``noise``: a noise spec (:func:`kgnav.sim.noise.parse_noise`: ``"locobot"``,
     ``"locobot,depth=0.01"``, ...; None: :data:`kgnav.sim.noise.DEFAULT_NOISE`);
     ``actuation_noise``, ``odometry_noise``: the older generic motion and pose-sensor noise
-    levels (with a named model in ``noise``, leave them 0). An environment that cannot honour
-    the noise it is given says so in one line (:class:`~kgnav.errors.KgnavError`)."""
+    levels (with a named model in ``noise``, leave them 0). An environment whose factory
+    applies them says so with ``applies_noise = True`` (:func:`env_applies_noise`); the
+    benchmark gives one that does not no noise by default, and refuses to ask it for any."""
 
     split: str = "val"
     scenes_dir: str | None = None
@@ -108,6 +109,13 @@ def env_weights(name: str) -> dict[str, Path]:
 
     named = getattr(find_env(name), "default_weights", None) or {}
     return {net: Path(f) if Path(f).is_absolute() else SHIPPED / f for net, f in named.items()}
+
+
+def env_applies_noise(name: str) -> bool:
+    """Whether environment ``name`` applies the noise :class:`EnvOptions` asks for (its
+    factory's ``applies_noise``; kgnav's simulator and MiniWorld do). A run must not record a
+    noise an environment silently ignored."""
+    return bool(getattr(find_env(name), "applies_noise", False))
 
 
 def make_env(name: str = DEFAULT_ENV, options: EnvOptions | None = None) -> EnvSuite:
