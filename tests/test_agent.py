@@ -539,3 +539,37 @@ def test_weak_views_reach_the_model_only_when_asked(env):
     assert any(0.3 <= s < threshold for s in scores[0.3])
     ObjectNavAgent(Camera.from_env(env), seg, make_extractor("opencv-gist"))
     assert seg.weak_score is None
+
+
+def test_a_way_round_that_keeps_growing_past_the_detour_ratio_is_given_up(env):
+    """The replayed val_00 failure: a goal 2.4 m away behind a wall, each way round the map
+    reveals longer than the last (23, 36, 58, 100 m). With ``detour_ratio`` the object is
+    given up at the second growth past the limit; without it each longer way round restarts
+    the stall clock and the agent walks them to the step limit. One long way round that then
+    shortens as the agent walks it is never given up."""
+    from types import SimpleNamespace
+
+    from kgnav.agent.loop import Target
+    from kgnav.agent.planner import Plan
+
+    def walk(distances, **cfg):
+        agent = _agent(env, **cfg)
+        agent.reset("chair")
+        target = agent._set_target(Target("episode", (2.4, 0.0), "chair_1"))
+        p = SimpleNamespace(state=SimpleNamespace(pose=(0.0, 0.0, 0.0), detections=[]))
+        for step, d in enumerate(distances):
+            agent.step_ = step
+            action = agent._approach(target, Plan("move_forward", False, d, None), p)
+            if action is None:
+                return step, agent.log_
+        return None, agent.log_
+
+    growing = [23.0] * 10 + [36.0] * 10 + [58.0] * 10 + [100.0] * 10
+    assert walk(growing)[0] is None  # off by default: walked on
+    step, log = walk(growing, detour_ratio=3.0)
+    assert step == 20 and log.detour_drops == [(20, "chair_1")] and log.rejected == ["chair_1"]
+    assert walk(growing, detour_ratio=50.0)[0] is None  # the limit, 122 m, is never passed
+    one_long_way = [5.0, 15.0] + [15.0 - 0.25 * k for k in range(1, 40)]
+    assert walk(one_long_way, detour_ratio=3.0)[0] is None
+    with pytest.raises(ValueError, match="detour_ratio"):
+        AgentConfig(detour_ratio=0.5)

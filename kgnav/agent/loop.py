@@ -90,6 +90,10 @@ class AgentConfig:
     live_override: str = "belief"  # soft: a live goal replaces a remembered one only when the
     # evidence believes it at least as much ("belief"), or "always" (the paper)
     stall_steps: int = 40  # steps without progress toward an object before giving it up
+    # an object is given up when the map makes the way round to it longer twice while that
+    # way is over this many times the straight line to it (plus 2 m): a growing detour is a
+    # stall, not a way to walk to the step limit (0: off; one long way round is still walked)
+    detour_ratio: float = 0.0
     goals: GoalConfig = field(default_factory=GoalConfig)
     relocation: RelocationConfig = field(default_factory=RelocationConfig)
     seed_map: bool = True  # after a relocation, plan with what the stored model saw
@@ -114,6 +118,9 @@ class AgentConfig:
             raise ValueError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
         if not 0 < self.unknown_speed <= 1:
             raise ValueError(f"unknown_speed must be in (0, 1], got {self.unknown_speed}")
+        if self.detour_ratio < 0 or 0 < self.detour_ratio < 1:
+            raise ValueError(f"detour_ratio must be 0 (off) or at least 1, "
+                             f"got {self.detour_ratio}")
         if self.soft_search not in SOFT_SEARCHES:
             raise ValueError(f"soft_search must be one of {SOFT_SEARCHES}, "
                              f"got {self.soft_search!r}")
@@ -149,6 +156,7 @@ class Target:
     stage: str = "area"  # soft strategy: the area, look around; the point; "commit": stop there
     scan_left: int | None = None
     seen_close: bool = False  # seen from within confirm_distance while heading for it
+    detours: int = 0  # times the way to it grew while already a detour (detour_ratio)
 
     @property
     def key(self):
@@ -196,6 +204,8 @@ class EpisodeLog:
     periods: list[MemoryPeriod] = field(default_factory=list)  # one per relocation accepted
     frontier_sources: dict[str, int] = field(default_factory=dict)  # exploration targets by
     # where the policy found them (FRONTIER_SOURCES; "policy": a policy that does not say)
+    detour_drops: list[tuple[int, str | None]] = field(default_factory=list)  # (step, object)
+    # given up because the way round kept growing (AgentConfig.detour_ratio)
 
 
 class ObjectNavAgent:
@@ -486,6 +496,11 @@ class ObjectNavAgent:
             return "stop"
         if not math.isfinite(plan.distance):
             return self._drop(target)
+        if plan.distance > self._best[0] + 1.0 and self._detour(target, plan, p):
+            target.detours += 1
+            if target.detours >= 2:  # the way round grew twice past the limit: give it up
+                self.log_.detour_drops.append((self.step_, target.object_id))
+                return self._drop(target)
         if plan.distance < self._best[0] - 0.1 or plan.distance > self._best[0] + 1.0:
             # progress, or the map revealed a longer way round: measure from here
             self._best = (plan.distance, self.step_)
@@ -495,6 +510,15 @@ class ObjectNavAgent:
                 return "stop"
             return self._drop(target)
         return plan.action
+
+    def _detour(self, target: Target, plan: Plan, p: Percept) -> bool:
+        """Whether the way to ``target`` is so much longer than the straight line that it
+        should not grow again: each wall the map reveals on an optimistic way through unseen
+        space makes the next way round longer, and walking them one after another can take
+        the agent to the step limit a few metres from the goal."""
+        ratio = self.config.detour_ratio
+        return ratio > 0 and plan.distance > ratio * math.dist(p.state.pose[:2],
+                                                               target.point) + 2.0
 
     def _confirm(self, target: Target, p: Percept) -> str | None:
         """At an object not yet seen from close range: turn toward it for a few steps. If it
