@@ -81,6 +81,28 @@ def test_a_bent_trajectory_has_a_known_error():
         np.concatenate([r, r2]))), abs=1e-6)
 
 
+def test_heading_error_is_measured_after_the_same_rigid_fit():
+    # stored: a walk along x facing +x; truth: the same walk turned by 1.2 rad (the frame),
+    # with true headings turned alike: no error. Then each stored heading 5 degrees off
+    # while positions stay exact: 5 degrees each, and the position error stays 0.
+    poses = [(0.3 * k, 0.05 * k * k, 0.1 * k) for k in range(8)]
+    m = _model("h-e004", poses)
+    T = (4.0, -2.0, 1.2)
+    truth = {}
+    for s in m.states():
+        d = m.graph.nodes[s]
+        truth[d["origin"]] = se2.compose(T, (d["x"], d["y"], d["theta"]))
+    h = fidelity.heading_residuals([m], truth)
+    assert h.shape == (8,) and h.max() < 1e-6
+    off = {k: (v[0], v[1], v[2] + math.radians(5.0)) for k, v in truth.items()}
+    assert np.allclose(fidelity.heading_residuals([m], off), 5.0)
+    assert fidelity.pose_residuals([m], off).max() < 1e-9
+    # truth without headings: positions scored, headings left out
+    flat = {k: v[:2] for k, v in truth.items()}
+    assert fidelity.heading_residuals([m], flat).shape == (0,)
+    assert fidelity.pose_residuals([m], flat).shape == (8,)
+
+
 def test_each_model_is_aligned_on_its_own_and_unknown_states_are_left_out():
     a = _model("h-e000", [(0.3 * k, 0.0, 0.0) for k in range(6)])
     b = _model("h-e001", [(0.0, 0.3 * k, 0.0) for k in range(6)], episode=1)
@@ -113,7 +135,8 @@ def test_state_truth_pairs_states_with_the_pose_of_their_step():
     m = _model("h-e003", [(0.25 * k, 0.0, 0.0) for k in range(5)])
     path = [(10.0 + k, 20.0, 0.0) for k in range(5)]
     t = state_truth(m, path)
-    assert t == {f"h-e003/s{k}": (10.0 + k, 20.0) for k in range(5)}
+    assert t == {f"h-e003/s{k}": (10.0 + k, 20.0, 0.0) for k in range(5)}
+    assert state_truth(m, [(1.0, 2.0)] * 5)["h-e003/s0"] == (1.0, 2.0)  # no heading given
     assert state_truth(m, [None] * 5) == {} and len(state_truth(m, path[:2])) == 2
 
 
@@ -133,6 +156,10 @@ def test_summary_scores_the_stored_poses(runs):
     assert house["pose_error_m"] == e
     noisy = runs["locobot"]["si"]["memory"]["pooled"]["pose_error_m"]
     assert noisy["states"] > 50 and noisy["median"] > 5e-3 and noisy["p95"] > noisy["median"]
+    h = clean["pooled"]["heading_error_deg"]
+    assert h["states"] == e["states"] and h["p95"] < 1e-2 and house["heading_error_deg"] == h
+    hn = runs["locobot"]["si"]["memory"]["pooled"]["heading_error_deg"]
+    assert hn["states"] == noisy["states"] and hn["median"] > 0.05
 
 
 class _Starts:

@@ -528,17 +528,18 @@ def _failure(record: dict, variant: Variant, target_source: str | None,
     return classify(False, record["dts"], target_source, target_err)
 
 
-def state_truth(model: AbstractModel, path: list) -> dict[str, tuple[float, float]]:
-    """The true world (x, y) of each state ``model`` recorded, keyed by its creator
-    (``model_id/node_id``, the first entry of its ``origin``): ``path[k]`` is the true pose
-    after ``k`` steps (None where the environment does not say), and a state records its
-    step. Plain data: it goes back from the worker that ran the episode."""
+def state_truth(model: AbstractModel, path: list) -> dict[str, tuple[float, ...]]:
+    """The true world pose (x, y, θ; (x, y) where the environment gives no heading) of each
+    state ``model`` recorded, keyed by its creator (``model_id/node_id``, the first entry of
+    its ``origin``): ``path[k]`` is the true pose after ``k`` steps (None where the
+    environment does not say), and a state records its step. Plain data: it goes back from
+    the worker that ran the episode."""
     out = {}
     for sid in model.states():
         d = model.graph.nodes[sid]
         k = int(d["step"])
         if 0 <= k < len(path) and path[k] is not None:
-            out[d["origin"].split(" ", 1)[0]] = (float(path[k][0]), float(path[k][1]))
+            out[d["origin"].split(" ", 1)[0]] = tuple(float(v) for v in path[k][:3])
     return out
 
 
@@ -834,10 +835,11 @@ def memory_fidelity(cfg: EvalConfig, models: dict[str, AbstractModel],
     and pooled; None when the environment offers no ground truth for it (``scene_objects``,
     ``episode_start``). ``truth``: per house, the true world (x, y) of the recorded states
     (:func:`state_truth`), for ``pose_error_m``: the stored states' position error after a
-    rigid fit of each model, per house and pooled over every state of every house."""
+    rigid fit of each model, per house and pooled over every state of every house, and
+    ``heading_error_deg``: their headings' error after the same fit."""
     truth = truth or {}
     per_house = {}
-    residuals = []
+    residuals, headings = [], []
     for k in cfg.scene_indices:
         env = _env(cfg, k)
         objects = getattr(env, "scene_objects", None)
@@ -850,11 +852,16 @@ def memory_fidelity(cfg: EvalConfig, models: dict[str, AbstractModel],
         per_house[name] = fidelity.score_memory(mine, objects(), seen.get(name),
                                                 cfg.agent.goals.belief)
         r = fidelity.pose_residuals((m for m, _ in mine), truth.get(name, {}))
+        h = fidelity.heading_residuals((m for m, _ in mine), truth.get(name, {}))
         per_house[name]["pose_error_m"] = fidelity.error_summary(r)
+        per_house[name]["heading_error_deg"] = fidelity.error_summary(h)
         residuals.append(r)
+        headings.append(h)
     pooled = fidelity.pooled(per_house)
     pooled["pose_error_m"] = fidelity.error_summary(
         np.concatenate(residuals) if residuals else ())
+    pooled["heading_error_deg"] = fidelity.error_summary(
+        np.concatenate(headings) if headings else ())
     return {"pooled": pooled, "houses": per_house}
 
 

@@ -240,7 +240,7 @@ def print_summary(summary: dict) -> None:
         t3 = Table("variant", "reloc. after 1st (min/mean)", "reloc. step",
                    "wrong merges (bridges, joins)",
                    "models/house", "objects", "precision (trusted)", "copies", "recall",
-                   "pose err. m (median / p95)",
+                   "pose err. m, heading ° (median / p95)",
                    title="Relocation and memory fidelity (against ground truth)")
         for name, s in mem.items():
             p = s["memory"]["pooled"]
@@ -252,7 +252,8 @@ def print_summary(summary: dict) -> None:
                 f"{s.get('wrong_joins', 0)} of {s.get('joins', 0)})",
                 " ".join(f"{k}:{v}" for k, v in p["models_per_house"].items()),
                 str(p["objects"]), f"{_f(p['precision'])} ({_f(p['trusted_precision'])})",
-                _f(p["copies"]), _f(p["recall"]), _pose_error(p.get("pose_error_m")))
+                _f(p["copies"]), _f(p["recall"]),
+                _pose_error(p.get("pose_error_m"), p.get("heading_error_deg")))
         console.print(t3)
     _print_where_lost(console, summary)
 
@@ -297,11 +298,14 @@ def _print_where_lost(console: Console, summary: dict) -> None:
         console.print(t3)
 
 
-def _pose_error(e: dict | None) -> str:
-    """The stored states' pose error (fidelity.error_summary): median / p95 (states)."""
+def _pose_error(e: dict | None, heading: dict | None = None) -> str:
+    """The stored states' pose error (fidelity.error_summary): median / p95 m, then their
+    headings' median / p95 in degrees when known, (states)."""
     if not e or e.get("median") is None:
         return "–"
-    return f"{e['median']:.3f} / {e['p95']:.3f} ({e['states']})"
+    h = ("" if not heading or heading.get("median") is None
+         else f", {heading['median']:.1f} / {heading['p95']:.1f}°")
+    return f"{e['median']:.3f} / {e['p95']:.3f}{h} ({e['states']})"
 
 
 def _f(v, digits: int = 2) -> str:
