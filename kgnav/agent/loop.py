@@ -496,12 +496,13 @@ class ObjectNavAgent:
             return "stop"
         if not math.isfinite(plan.distance):
             return self._drop(target)
-        if plan.distance > self._best[0] + 1.0 and self._detour(target, plan, p):
+        longer = plan.distance > self._best[0] + 1.0  # the map revealed a longer way round
+        if longer and self._detour(target, plan, p):
             target.detours += 1
             if target.detours >= 2:  # the way round grew twice past the limit: give it up
                 self.log_.detour_drops.append((self.step_, target.object_id))
                 return self._drop(target)
-        if plan.distance < self._best[0] - 0.1 or plan.distance > self._best[0] + 1.0:
+        if plan.distance < self._best[0] - 0.1 or longer:
             # progress, or the map revealed a longer way round: measure from here
             self._best = (plan.distance, self.step_)
         elif self.step_ - self._best[1] > self.config.stall_steps:

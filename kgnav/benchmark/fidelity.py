@@ -21,7 +21,7 @@ created it, mapped to the world with ``frame``):
   rigid 2-D fit (:func:`kgnav.common.se2.fit_points`), and the residuals' median and 95th
   percentile (m) are reported with the number of states. 0 with a perfect pose sensor and
   exact merges; odometry drift and wrong merge transforms raise it. The stored headings'
-  error after the same fit (:func:`heading_residuals`, degrees) beside it: what places the
+  error after the same fit (:func:`residuals`, degrees) beside it: what places the
   objects a state saw.
 
 >>> from kgnav.sim.house import ObjectInstance
@@ -168,9 +168,16 @@ def pooled(per_house: dict[str, dict]) -> dict:
     }
 
 
-def _fits(models: Iterable[AbstractModel], truth: Mapping[str, tuple]):
-    """Per model with states of known truth: (stored poses, true poses, the rigid fit of the
-    stored positions onto the true ones); the true poses are ``(x, y)`` or ``(x, y, θ)``."""
+def residuals(models: Iterable[AbstractModel], truth: Mapping[str, tuple]
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The stored states' position residuals (m) and heading residuals (degrees, absolute),
+    each model aligned to the truth by one rigid 2-D fit of its positions. ``truth``: the
+    true world (x, y) or (x, y, θ) of every recorded state, keyed ``model_id/node_id`` (the
+    first entry of a state's ``origin``: its creator); states without one are left out, and
+    from the headings also those whose truth has none. A heading a few degrees off moves
+    everything the state saw sideways by its range times the angle: an object seen from 4 m
+    by a state 5° off lands 0.35 m away, though the state's own position may be exact."""
+    dist, deg = [], []
     for model in models:
         p, q = [], []
         for sid in model.states():
@@ -178,37 +185,33 @@ def _fits(models: Iterable[AbstractModel], truth: Mapping[str, tuple]):
             t = truth.get(d["origin"].split(" ", 1)[0])
             if t is not None:
                 p.append((d["x"], d["y"], d["theta"]))
-                q.append(tuple(t))
-        if p:
-            xy = np.array(p)[:, :2]
-            yield p, q, se2.fit_points(xy, np.array([t[:2] for t in q], np.float64))
+                q.append((*t[:3], math.nan)[:3])  # NaN: no true heading
+        if not p:
+            continue
+        p, q = np.array(p, np.float64), np.array(q, np.float64)
+        T = se2.fit_points(p[:, :2], q[:, :2])
+        dist.append(np.linalg.norm(se2.apply_to_points(T, p[:, :2]) - q[:, :2], axis=1))
+        deg.append(np.degrees([se2.angle_diff(a + T[2], b)
+                               for a, b in zip(p[:, 2], q[:, 2], strict=True)
+                               if not math.isnan(b)]))
+    return (np.concatenate(dist) if dist else np.zeros(0),
+            np.concatenate(deg) if deg else np.zeros(0))
 
 
 def pose_residuals(models: Iterable[AbstractModel],
                    truth: Mapping[str, tuple[float, float]]) -> np.ndarray:
     """Per stored state with a known true pose, the distance (m) between its stored position
-    and its true world position after one rigid 2-D fit of each model to the truth.
-    ``truth``: the true world (x, y) — or (x, y, θ) — of every recorded state, keyed
-    ``model_id/node_id`` (the first entry of a state's ``origin``: its creator); states
-    without one are left out."""
-    out = []
-    for p, q, T in _fits(models, truth):
-        xy, true = np.array(p)[:, :2], np.array([t[:2] for t in q], np.float64)
-        out.append(np.linalg.norm(se2.apply_to_points(T, xy) - true, axis=1))
-    return np.concatenate(out) if out else np.zeros(0)
+    and its true world position after one rigid 2-D fit of each model to the truth (the
+    positions of :func:`residuals`)."""
+    return residuals(models, truth)[0]
 
 
 def heading_residuals(models: Iterable[AbstractModel],
                       truth: Mapping[str, tuple]) -> np.ndarray:
     """Per stored state whose truth has a heading, the error (degrees, absolute) of its stored
-    heading after the same rigid fit as :func:`pose_residuals`. A heading a few degrees off
-    moves everything the state saw sideways by its range times the angle: an object seen from
-    4 m by a state 5° off lands 0.35 m away, though the state's own position may be exact."""
-    out = []
-    for p, q, T in _fits(models, truth):
-        out.extend(math.degrees(se2.angle_diff(s[2] + T[2], t[2]))
-                   for s, t in zip(p, q, strict=True) if len(t) > 2)
-    return np.asarray(out, np.float64)
+    heading after the same rigid fit as :func:`pose_residuals` (the headings of
+    :func:`residuals`)."""
+    return residuals(models, truth)[1]
 
 
 def error_summary(residuals) -> dict:

@@ -833,7 +833,7 @@ def memory_fidelity(cfg: EvalConfig, models: dict[str, AbstractModel],
                     seen: dict[str, set[int]], truth: dict[str, dict] | None = None) -> dict:
     """The memory scored against ground truth (:mod:`kgnav.benchmark.fidelity`), per house
     and pooled; None when the environment offers no ground truth for it (``scene_objects``,
-    ``episode_start``). ``truth``: per house, the true world (x, y) of the recorded states
+    ``episode_start``). ``truth``: per house, the true world pose of the recorded states
     (:func:`state_truth`), for ``pose_error_m``: the stored states' position error after a
     rigid fit of each model, per house and pooled over every state of every house, and
     ``heading_error_deg``: their headings' error after the same fit."""
@@ -851,8 +851,7 @@ def memory_fidelity(cfg: EvalConfig, models: dict[str, AbstractModel],
                 if _house_of(mid) == name]
         per_house[name] = fidelity.score_memory(mine, objects(), seen.get(name),
                                                 cfg.agent.goals.belief)
-        r = fidelity.pose_residuals((m for m, _ in mine), truth.get(name, {}))
-        h = fidelity.heading_residuals((m for m, _ in mine), truth.get(name, {}))
+        r, h = fidelity.residuals((m for m, _ in mine), truth.get(name, {}))
         per_house[name]["pose_error_m"] = fidelity.error_summary(r)
         per_house[name]["heading_error_deg"] = fidelity.error_summary(h)
         residuals.append(r)
