@@ -64,6 +64,16 @@ def models(draw, model_id: str | None = None, min_states: int = 1, max_states: i
                         for i, e, k in draw(st.lists(st.tuples(st.integers(0, n - 1),
                                                                st.integers(0, 2), st.booleans()),
                                                      max_size=3)))
+    # raw odometry and closure links (schema 5)
+    if draw(st.booleans()):
+        m.add_odometry({f"{m.model_id}/{s}": [k, *draw(st.tuples(coord, coord, angle)),
+                                               0.25 * k, 0.1 * k]
+                        for k, s in enumerate(ids)})
+        m.add_loop_closures({"state": f"{m.model_id}/{ids[i]}", "episode": 3, "kept": True,
+                             "to": f"{m.model_id}/{ids[j]}", "rel": rel}
+                            for i, j, rel in draw(st.lists(st.tuples(
+                                st.integers(0, n - 1), st.integers(0, n - 1),
+                                st.tuples(coord, coord, angle)), max_size=2)))
     return m
 
 

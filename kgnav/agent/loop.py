@@ -422,16 +422,26 @@ class ObjectNavAgent:
         if r is None:
             # stored as a new model: its drift corrected by its loops on itself, if any
             self.relocalizer.close_own_loops()
-        # drift corrected by the episode's loop closures (only with a drift model set)
+        # drift corrected by the episode's loop closures (only with a drift model set); the
+        # raw odometry and the closures' links are kept first, for the stored model's pose
+        # graph to use again at this and every later merge
+        self.model_.add_odometry(self.relocalizer.odometry_records(self.model_))
         T = r.transform if r is not None else (0.0, 0.0, 0.0)
+        links = (self.relocalizer.closure_links(self.model_, r.model_id)
+                 if r is not None else {})
         poses = self.relocalizer.corrected_poses(self.model_, T)
         if poses:
             bend(self.model_, poses)
             mid = self.model_.model_id
             self.model_.add_loop_closures(
-                {"state": f"{mid}/{sid}", "episode": self.episode, "kept": kept}
+                {"state": f"{mid}/{sid}", "episode": self.episode, "kept": kept,
+                 **self._link(links.get(f"{mid}/{sid}") if kept else None)}
                 for sid, kept in self.relocalizer.closure_states(self.model_))
         return r
+
+    @staticmethod
+    def _link(link) -> dict:
+        return {} if link is None else {"to": link[0], "rel": link[1]}
 
     # ------------------------------------------------------------------ 3. reasoning
     @property

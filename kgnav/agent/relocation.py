@@ -34,7 +34,7 @@ import numpy as np
 from kgnav.common import se2
 from kgnav.memory.evidence import MISS_RANGE
 from kgnav.memory.geometry import OccupancyGrid, occupancy_from_scans
-from kgnav.memory.posegraph import Anchor, Correction, DriftModel, correct
+from kgnav.memory.posegraph import Anchor, Correction, DriftModel, correct, travelled
 
 _START = "episode start"  # the anchor holding an episode corrected on itself in its frame
 
@@ -79,6 +79,10 @@ class RelocationConfig:
     # (None: odometry trusted as exact, one rigid transform, as without noise)
     drift: DriftModel | None = None
     closure_window: int = 20  # profiles per loop-closure stretch
+    # a stretch whose aligned walls pin it less than this in its weakest direction (the ratio
+    # of the smaller to the larger eigenvalue of the alignment's translational information)
+    # is no loop closure: along one wall an alignment slides (0: no check)
+    closure_constraint: float = 0.0
     # with a drift model, an episode stored as a new model is first corrected against itself:
     # a stretch that comes back to space the episode mapped at least this many profiles
     # earlier is a loop closure on that earlier map (0: off)
@@ -87,6 +91,11 @@ class RelocationConfig:
     # stored model, since the earlier map is drawn with the same odometry and the aligner's
     # noise would otherwise outweigh an odometry that is good over short stretches
     self_closure_sigma: tuple[float, float] = (0.2, 8.0)
+    # a kept closure is recorded as a link to the stored state nearest where it placed the
+    # episode, when one lies this close (m); merges then optimise the whole model's pose
+    # graph (kgnav.memory.posegraph.straighten) with every recorded episode's odometry
+    link_radius: float = 1.5
+    joint: bool = True  # re-optimise the stored model at each merge (with a drift model)
 
 
 @dataclass
@@ -594,6 +603,10 @@ class Relocalizer:
             if not v.ok:
                 self.decisions[f"loop closure refused: {v.reason}"] += 1
                 continue
+            if _constraint(geo, ends, Ta, c.inlier_distance) < c.closure_constraint:
+                # the stretch saw walls of mostly one direction: it can slide along them
+                self.decisions["loop closure refused: degenerate"] += 1
+                continue
             mid = start + len(stretch) // 2
             anchors.append(Anchor(mid, se2.compose(Ta, chain[mid]), f"step {self._steps[mid]}"))
             Tk = Ta
@@ -683,6 +696,62 @@ class Relocalizer:
                     continue  # the frame's anchor, not a loop closure
                 k = int(np.abs(steps - self._steps[a.node]).argmin())
                 out.append((ids[k], kept))
+        return out
+
+    def odometry_records(self, episode) -> dict[str, list[float]]:
+        """The raw odometry of each of the ``episode`` model's states, to record on it
+        (:attr:`~kgnav.memory.model.AbstractModel.odometry`) before any correction moves them:
+        its pose (the odometry's, episode frame) with the distance driven and angle turned up
+        to the nearest profile by step. Empty without a drift model (exact odometry needs no
+        pose graph)."""
+        if self.config.drift is None or not self._steps:
+            return {}
+        driven, turned = travelled([p for p, _, _ in self._all])
+        steps = np.asarray(self._steps)
+        g = episode.graph
+        out = {}
+        for sid in episode.states():
+            d = g.nodes[sid]
+            k = int(np.abs(steps - int(d.get("step", 0))).argmin())
+            out[f"{episode.model_id}/{sid}"] = [int(d.get("step", 0)), d["x"], d["y"],
+                                                d["theta"], float(driven[k]), float(turned[k])]
+        return out
+
+    def closure_links(self, episode, model_id: str) -> dict[str, tuple[str, tuple]]:
+        """For the kept loop closures of the :attr:`correction` on stored model ``model_id``:
+        the ``episode`` state each placed (``"model_id/sN"``) -> (the stored state nearest to
+        where the closure put it, within ``link_radius``; the state's pose relative to that
+        stored state, as measured). Kept with the model, they tie the episode to the stored
+        states again whenever the model's pose graph is optimised
+        (:func:`kgnav.memory.posegraph.straighten`). Call before the episode is bent."""
+        fix = self.correction
+        if fix is None or not self._steps or model_id not in self.memory.models:
+            return {}
+        stored = self.memory.model(model_id)
+        sg = stored.graph.nodes
+        st_ids = list(stored.states())
+        if not st_ids:
+            return {}
+        st_xy = np.array([(sg[s]["x"], sg[s]["y"]) for s in st_ids], float)
+        ids = list(episode.states())
+        steps = np.array([int(episode.graph.nodes[s].get("step", 0)) for s in ids])
+        out = {}
+        for a in fix.kept:
+            if a.source == _START:
+                continue
+            k = int(np.abs(steps - self._steps[a.node]).argmin())
+            d = episode.graph.nodes[ids[k]]
+            odo = self._all[a.node][0]
+            # where the closure puts the state: its anchor, then the odometry from there
+            at = se2.compose(a.pose, se2.compose(se2.inverse(tuple(odo)),
+                                                 (d["x"], d["y"], d["theta"])))
+            near = np.hypot(st_xy[:, 0] - at[0], st_xy[:, 1] - at[1])
+            j = int(near.argmin())
+            if near[j] > self.config.link_radius:
+                continue
+            to = st_ids[j]
+            rel = se2.compose(se2.inverse((sg[to]["x"], sg[to]["y"], sg[to]["theta"])), at)
+            out[f"{episode.model_id}/{ids[k]}"] = (sg[to]["origin"].split()[0], rel)
         return out
 
     def corrected_poses(self, episode, T) -> dict[str, tuple[float, float, float]]:
@@ -843,6 +912,21 @@ class Relocalizer:
             if v.ok:
                 self.bridges[m.model_id] = v
                 self.decisions["bridge"] += 1
+
+
+def _constraint(geo: StoredGeometry, ends: np.ndarray, T, inlier_distance: float) -> float:
+    """How well the stored obstacles pin the points ``ends`` (mapped by ``T``) in every
+    direction: the smaller over the larger eigenvalue of the alignment's translational
+    information (the sum of n nᵀ over the inliers' distance-field normals n). 1 for walls of
+    every direction, near 0 along a single wall, where an alignment slides freely."""
+    pts = se2.apply_to_points(T, ends)
+    d, gx, gy = geo.sample(pts)
+    use = d <= inlier_distance
+    if use.sum() < 3:
+        return 0.0
+    n = np.stack([gx[use], gy[use]], axis=1)
+    lo, hi = np.linalg.eigvalsh(n.T @ n)
+    return float(lo / hi) if hi > 0 else 0.0
 
 
 def _margin(v: Verdict) -> float:

@@ -22,6 +22,7 @@ from kgnav.common import se2
 from kgnav.memory.evidence import forget
 from kgnav.memory.merge import merge
 from kgnav.memory.model import AbstractModel
+from kgnav.memory.posegraph import DriftModel, bend, straighten
 
 __all__ = ["absorb"]
 
@@ -29,8 +30,8 @@ __all__ = ["absorb"]
 def absorb(models: dict[str, AbstractModel], model: AbstractModel, *, into: str | None = None,
            transform: tuple[float, float, float] | None = None,
            bridges: Mapping[str, tuple[float, float, float]] | None = None,
-           forget_below: float = 0.0, forget_label_share: float = 0.0
-           ) -> tuple[str, list[str]]:
+           forget_below: float = 0.0, forget_label_share: float = 0.0,
+           drift: DriftModel | None = None) -> tuple[str, list[str]]:
     """Fold an episode's ``model`` into the memory ``models`` (id -> model, changed in place).
 
     ``into``: the stored model the episode relocated into (and kept as mergeable), with
@@ -40,7 +41,11 @@ def absorb(models: dict[str, AbstractModel], model: AbstractModel, *, into: str 
     model transform); they are merged into ``into`` as well, so separate models of one house
     join. Objects whose belief fell below ``forget_below``, or whose place mostly gave
     another class (label share below ``forget_label_share``), are then forgotten
-    (:func:`kgnav.memory.evidence.forget`). Returns the id of the model that changed and the ids of
+    (:func:`kgnav.memory.evidence.forget`). With ``drift`` (the odometry's
+    :class:`~kgnav.memory.posegraph.DriftModel`), the merged model's pose graph is optimised
+    again over every episode's recorded odometry and loop-closure links
+    (:func:`kgnav.memory.posegraph.straighten`) and its states and objects moved to the
+    result. Returns the id of the model that changed and the ids of
     the models folded away (to delete from a store).
     """
     def consolidate(m: AbstractModel) -> None:
@@ -60,6 +65,10 @@ def absorb(models: dict[str, AbstractModel], model: AbstractModel, *, into: str 
         merged = merge(merged, models.pop(mid), transform=se2.compose(transform,
                                                                       se2.inverse(T)))
         gone.append(mid)
+    if drift is not None:
+        rejected: list[dict] = []
+        bend(merged, straighten(merged, drift, rejected))
+        merged.reject_loop_closures(rejected)
     consolidate(merged)
     models[into] = merged
     return into, gone

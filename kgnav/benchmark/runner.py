@@ -273,12 +273,21 @@ def _make_agent(cfg: EvalConfig, variant: Variant, env: NavEnv, memory: Memory |
     if variant.policy == "semantic":
         policy.cooccurrence_ = _ROUND.get("cooccurrence", {})
     config = replace(cfg.agent, strategy=variant.strategy)
-    if cfg.drift_correction and cfg.noise_spec.odometry.active and config.relocation.drift is None:
-        # the robot's odometry drifts: its episodes are bent onto the memory before merging
-        config = replace(config, relocation=replace(config.relocation, drift=DriftModel()))
+    config = replace(config, relocation=replace(config.relocation, drift=_drift(cfg)))
     return ObjectNavAgent.for_env(spec, _segmenter(cfg, spec),
                                   _extractor(extractor_name, cfg.encoder_weights),
                                   policy=policy, memory=memory, config=config)
+
+
+def _drift(cfg: EvalConfig) -> DriftModel | None:
+    """The odometry's drift model the agent corrects its episodes with: the configured one,
+    or, when the robot's odometry drifts (and correction is on), the default."""
+    if cfg.agent.relocation.drift is not None:
+        return cfg.agent.relocation.drift
+    if cfg.drift_correction and cfg.noise_spec.odometry.active:
+        # the robot's odometry drifts: its episodes are bent onto the memory before merging
+        return DriftModel()
+    return None
 
 
 def _segmenter(cfg: EvalConfig, spec: EnvSpec):
@@ -802,7 +811,8 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
                 updated = []  # (outcome, the model its memory update changed)
                 for o in outcomes:  # merges in scene order: the same with any worker count
                     changed, gone = absorb(models, o, cfg.forget_below,
-                                           cfg.forget_label_share)
+                                           cfg.forget_label_share,
+                                           _drift(cfg) if cfg.agent.relocation.joint else None)
                     seen.setdefault(o.record["scene"], set()).update(o.seen)
                     truth.setdefault(o.record["scene"], {}).update(o.truth)
                     updated.append((o, changed))
@@ -913,12 +923,15 @@ def _join_fields(cfg: EvalConfig, j: Join) -> dict:
 
 
 def absorb(models: dict[str, AbstractModel], o: Outcome, forget_below: float = 0.0,
-           forget_label_share: float = 0.0) -> tuple[str, list[str]]:
+           forget_label_share: float = 0.0, drift: DriftModel | None = None
+           ) -> tuple[str, list[str]]:
     """Fold an episode's :class:`Outcome` into the memory (in place):
     :func:`kgnav.benchmark.memory_update.absorb` with its model, the model it relocated
-    into, the transform and its bridges."""
+    into, the transform and its bridges (and, with ``drift``, the merged model's pose graph
+    optimised again)."""
     return _absorb(models, o.model, into=o.matched, transform=o.transform, bridges=o.bridges,
-                   forget_below=forget_below, forget_label_share=forget_label_share)
+                   forget_below=forget_below, forget_label_share=forget_label_share,
+                   drift=drift)
 
 
 STORES = ("directory", "ladybug")

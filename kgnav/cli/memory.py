@@ -64,8 +64,12 @@ def inspect(file: Path, as_json: bool) -> None:
         )
     lc = info["loop_closures"]
     if lc["kept"] or lc["rejected"]:
+        linked = f"; {lc['linked']} of the kept linked to stored states" if lc["linked"] else ""
         out.print(f"  {'loop closures':<15}{lc['kept']} kept, {lc['rejected']} rejected "
-                  "(drifting episodes bent onto the model)")
+                  f"(drifting episodes bent onto the model{linked})")
+    if info["odometry_states"]:
+        out.print(f"  {'odometry':<15}raw odometry of {info['odometry_states']} states "
+                  "(the model's pose graph is optimised again at each merge)")
     table = _table("class", "objects", "views", "max views", title="class inventory")
     for cls, c in info["classes"].items():
         _row(table, cls, c["objects"], c["views"], c["max_views"])

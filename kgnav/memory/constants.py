@@ -6,7 +6,7 @@ neither has to import the other."""
 import re
 
 #: Version of the GraphML schema (:mod:`kgnav.memory.graphml.schema`) this code writes.
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 
 #: The paper's action set; transitions are keyed by these names.
 ACTIONS: tuple[str, ...] = ("stop", "move_forward", "turn_left", "turn_right")

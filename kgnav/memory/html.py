@@ -153,13 +153,15 @@ def _state_node(model: AbstractModel, sid: str, d: dict) -> dict:
     return {"id": sid, "x": px, "y": py, "title": title, "color": STATE_COLOR}
 
 
-def _closures(model: AbstractModel) -> dict[str, list[tuple[int, bool]]]:
-    """State id -> the loop closures that placed it: (episode, kept) each."""
-    out: dict[str, list[tuple[int, bool]]] = defaultdict(list)
+def _closures(model: AbstractModel) -> dict[str, list[tuple[int, bool, str | None]]]:
+    """State id -> the loop closures that placed it: (episode, kept, the stored state it is
+    linked to or None) each."""
+    out: dict[str, list[tuple[int, bool, str | None]]] = defaultdict(list)
     for c in model.loop_closures:
         sid = model.known_node(c["state"])
         if sid is not None:
-            out[sid].append((c["episode"], c["kept"]))
+            to = model.known_node(c["to"]) if "to" in c else None
+            out[sid].append((c["episode"], c["kept"], to))
     return dict(out)
 
 
@@ -197,9 +199,10 @@ def build_network(model: AbstractModel, *, title: str, show_sees: bool | None = 
     nodes = [_state_node(model, n, g.nodes[n]) for n in model.states()]
     closures = _closures(model)
     for node in nodes:
-        for episode, kept in closures.get(node["id"], ()):
+        for episode, kept, to in closures.get(node["id"], ()):
             node["title"] += (f"\nloop closure of episode {episode}: "
-                              f"{'kept' if kept else 'rejected'}")
+                              f"{'kept' if kept else 'rejected'}"
+                              + (f", linked to state {to}" if to is not None else ""))
             node.update(shape="diamond", size=7, color=CLOSURE_COLOR[kept])
     evidence = object_evidence(model)
     nodes += [

@@ -160,6 +160,7 @@ def merge(
             lineage.append(mid)
     g.graph["merged_from"] = json.dumps(lineage)
     out.add_loop_closures(src.loop_closures)
+    out.add_odometry(src.odometry)
     episodes = out.episodes
     episodes += [e for e in src.episodes if e not in episodes]
     g.graph["episodes"] = json.dumps(episodes)

@@ -44,7 +44,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import networkx as nx
@@ -234,16 +234,57 @@ class AbstractModel:
         return json.loads(self.graph.graph.get("loop_closures", "[]"))
 
     def add_loop_closures(self, closures: Iterable[dict]) -> None:
-        """Record ``closures`` (see :attr:`loop_closures`); one already recorded is skipped."""
+        """Record ``closures`` (see :attr:`loop_closures`); one already recorded is skipped.
+        A kept closure may link its state to the stored state it was measured against:
+        ``"to": "model_id/sN", "rel": (dx, dy, dtheta)`` (the state's pose in the frame of
+        ``to``), which :func:`kgnav.memory.posegraph.straighten` uses again at later merges."""
         have = self.loop_closures
         seen = {(c["state"], c["episode"]) for c in have}
         for c in closures:
-            c = {"state": str(c["state"]), "episode": int(c["episode"]), "kept": bool(c["kept"])}
+            link = {}
+            if c.get("to") is not None:
+                link = {"to": str(c["to"]), "rel": [float(v) for v in se2.as_pose(c["rel"])]}
+            c = {"state": str(c["state"]), "episode": int(c["episode"]), "kept": bool(c["kept"]),
+                 **link}
             if (c["state"], c["episode"]) not in seen:
                 seen.add((c["state"], c["episode"]))
                 have.append(c)
         if have:
             self.graph.graph["loop_closures"] = json.dumps(have, separators=(",", ":"))
+
+    def reject_loop_closures(self, closures: Iterable[dict]) -> None:
+        """Mark recorded ``closures`` (matched by state and episode) as rejected: a link that
+        a later optimisation of the model found contradicted stays on record, unused."""
+        drop = {(str(c["state"]), int(c["episode"])) for c in closures}
+        have = self.loop_closures
+        if drop and have:
+            for c in have:
+                if (c["state"], c["episode"]) in drop:
+                    c["kept"] = False
+            self.graph.graph["loop_closures"] = json.dumps(have, separators=(",", ":"))
+
+    @property
+    def odometry(self) -> dict[str, tuple[float, ...]]:
+        """Each recorded state's raw odometry (docs/drift.md): ``"model_id/sN" -> (step, x, y,
+        theta, driven, turned)``, its pose in its episode's own odometry frame, never corrected,
+        with the distance driven and angle turned since that episode began. Recorded only for
+        episodes whose odometry drifts; merges keep every record."""
+        text = self.graph.graph.get("odometry", "")
+        return {k: tuple(v) for k, v in json.loads(text).items()} if text else {}
+
+    def add_odometry(self, records: Mapping[str, Sequence[float]]) -> None:
+        """Record raw odometry (see :attr:`odometry`); a state already recorded keeps its own."""
+        if not records:
+            return
+        have = self.odometry
+        for k, v in records.items():
+            v = [float(x) for x in v]
+            if len(v) != 6 or not all(math.isfinite(x) for x in v):
+                raise ValueError(f"odometry of {k!r} must be 6 finite numbers, got {v!r}")
+            have.setdefault(str(k), tuple(v))
+        # rounded: micrometres and microradians are far below any odometry's error
+        self.graph.graph["odometry"] = json.dumps(
+            {k: [round(x, 6) for x in v] for k, v in have.items()}, separators=(",", ":"))
 
     @property
     def scan(self) -> ScanGeometry | None:

@@ -21,6 +21,12 @@ the episode that verifies against the stored geometry on its own is a **loop clo
 :func:`bend` moves a model's states to corrected poses, and its objects with the states that saw
 them.
 
+:func:`straighten` optimises a whole stored model again: every episode that built it keeps its
+raw odometry (:attr:`~kgnav.memory.model.AbstractModel.odometry`) and every kept loop closure
+its link to the stored state it was measured against, so a merge solves one pose graph over all
+of them, and each new episode's odometry straightens the model a little instead of being bent
+onto it.
+
 >>> chain = [(0.25 * i, 0.0, 0.0) for i in range(41)]         # odometry: a straight line
 >>> truth = [(0.25 * i, 0.01 * i, 0.0) for i in range(41)]     # it veered 1 cm a step
 >>> wrong = Anchor(30, (7.5, 1.3, 1.57))                        # a look-alike room, turned
@@ -40,7 +46,8 @@ import numpy as np
 
 from kgnav.common import se2
 
-__all__ = ["Anchor", "Correction", "DriftModel", "bend", "consistent", "correct"]
+__all__ = ["Anchor", "Correction", "DriftModel", "bend", "consistent", "correct", "straighten",
+           "travelled"]
 
 # chi-square, 3 degrees of freedom, 99 %: the pairwise consistency bound (Mahalanobis squared)
 CHI2_3_99 = 11.345
@@ -108,7 +115,7 @@ class Correction:
                 "rejected": len(self.rejected)}
 
 
-def _motion(chain: Sequence) -> tuple[np.ndarray, np.ndarray]:
+def travelled(chain: Sequence) -> tuple[np.ndarray, np.ndarray]:
     """Cumulative distance driven and angle turned along ``chain`` (both (n,))."""
     p = np.asarray(chain, np.float64).reshape(-1, 3)
     step = np.hypot(np.diff(p[:, 0]), np.diff(p[:, 1]))
@@ -129,7 +136,7 @@ def consistent(chain: Sequence, anchors: Sequence[Anchor], drift: DriftModel,
     n = len(anchors)
     if n <= 1:
         return list(range(n))
-    dist, turn = _motion(chain)
+    dist, turn = travelled(chain)
     g = nx.Graph()
     g.add_nodes_from(range(n))
     for a in range(n):
@@ -227,3 +234,121 @@ def bend(model, poses: Mapping[str, tuple[float, float, float]]):
         d["x"], d["y"] = float(d["x"] + dx), float(d["y"] + dy)
     model._init_counters()  # the spatial index follows the moved nodes
     return model
+
+
+def straighten(model, drift: DriftModel, rejected: list | None = None,
+               bound: float = CHI2_3_99, max_iterations: int = 50
+               ) -> dict[str, tuple[float, float, float]]:
+    """The ``model``'s state poses optimised jointly over everything it recorded: each
+    episode's raw odometry between its consecutive recorded states (a between-factor whose
+    noise grows with the distance driven and the angle turned between them, ``drift``) and
+    each kept loop closure's link (the closing state's pose relative to the stored state it
+    was aligned on, a robust between-factor at the closure's precision). States that two
+    episodes share (fused on merging) join their chains. Every connected part of the graph
+    keeps its frame: its states without odometry stay where they are, and a part with none
+    keeps its oldest state. A link that the optimised poses still contradict beyond
+    ``bound`` (Mahalanobis squared) is dropped and the graph solved again without it (at
+    most three rounds); dropped links are appended to ``rejected`` when given. Returns the
+    states that moved (id -> pose, the model's frame; empty when the model recorded nothing
+    to optimise); :func:`bend` applies them.
+
+    >>> from kgnav import AbstractModel
+    >>> m = AbstractModel(feature_dim=1, model_id="m")
+    >>> f = np.ones(1, np.float32)
+    >>> a, b = (m.add_state(f, (x, 0.0, 0.0), episode=0) for x in (0.0, 1.0))
+    >>> m.add_odometry({"m/s0": [0, 0, 0, 0, 0, 0], "m/s1": [1, 1.2, 0, 0, 1.2, 0]})
+    >>> round(straighten(m, DriftModel())["s1"][0], 3)    # the odometry said 1.2 m
+    1.2
+    """
+    import gtsam
+
+    odometry = model.odometry
+    links = [c for c in model.loop_closures if c.get("kept") and "to" in c]
+    if not odometry and not links:
+        return {}
+    g = model.graph
+
+    def state_of(origin: str) -> str | None:
+        s = model.known_node(origin)
+        return s if s is not None and g.nodes[s]["kind"] == "state" else None
+
+    chains: dict[str, list] = {}
+    for origin, rec in odometry.items():
+        sid = state_of(origin)
+        if sid is not None:
+            chains.setdefault(origin.rsplit("/", 1)[0], []).append((rec[0], sid, rec))
+    factors = []  # (a, b, relative pose of b in a's frame, sigma_xy, sigma_theta, link or None)
+    for items in chains.values():
+        items.sort(key=lambda t: t[0])
+        for (_, sa, ra), (_, sb, rb) in zip(items[:-1], items[1:], strict=True):
+            if sa == sb:
+                continue
+            s_xy, s_th = drift.sigmas(abs(rb[4] - ra[4]), abs(rb[5] - ra[5]))
+            factors.append((sa, sb, _relative(ra[1:4], rb[1:4]), s_xy, s_th, None))
+    for c in links:
+        sa, sb = state_of(c["to"]), state_of(c["state"])
+        if sa is not None and sb is not None and sa != sb:
+            factors.append((sa, sb, tuple(c["rel"]), drift.anchor_xy, drift.anchor_theta, c))
+    if not factors:
+        return {}
+    recorded = {sid for items in chains.values() for _, sid, _ in items}
+    start = {sid: (d["x"], d["y"], d["theta"]) for sid, d in
+             ((s, g.nodes[s]) for f in factors for s in f[:2])}
+    for _ in range(3):
+        poses = _solve(gtsam, factors, start, recorded, max_iterations)
+        worst = []
+        for f in factors:
+            if f[5] is not None:
+                e = _relative(f[2], _relative(poses[f[0]], poses[f[1]]))
+                m2 = (e[0] ** 2 + e[1] ** 2) / f[3] ** 2 + (e[2] / f[4]) ** 2
+                if m2 > bound:
+                    worst.append(f)
+        if not worst:
+            break
+        factors = [f for f in factors if f not in worst]
+        if rejected is not None:
+            rejected.extend(f[5] for f in worst)
+    out = {}
+    for sid, new in poses.items():
+        old = start[sid]
+        # below a micrometre is the solver's rounding, not a correction
+        if (abs(new[0] - old[0]) > 1e-6 or abs(new[1] - old[1]) > 1e-6
+                or se2.angle_diff(new[2], old[2]) > 1e-6):
+            out[sid] = new
+    return out
+
+
+def _solve(gtsam, factors, start, recorded, max_iterations) -> dict:
+    """The pose graph of ``factors`` solved from the ``start`` poses; every connected part
+    held by its states without odometry, else by its oldest state."""
+    parts = nx.Graph()
+    parts.add_nodes_from(start)
+    parts.add_edges_from((f[0], f[1]) for f in factors)
+    key = {sid: i for i, sid in enumerate(parts.nodes)}
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    for sid, i in key.items():
+        values.insert(i, gtsam.Pose2(*start[sid]))
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(1.345)
+    for a, b, rel, s_xy, s_th, link in factors:
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([s_xy, s_xy, s_th]))
+        if link is not None:
+            noise = gtsam.noiseModel.Robust.Create(huber, noise)
+        graph.add(gtsam.BetweenFactorPose2(key[a], key[b], gtsam.Pose2(*rel), noise))
+    fixed = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
+    for part in nx.connected_components(parts):
+        hold = [s for s in part if s not in recorded] or [min(part, key=_state_order)]
+        for sid in hold:
+            graph.add(gtsam.PriorFactorPose2(key[sid], gtsam.Pose2(*start[sid]), fixed))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(int(max_iterations))
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+    out = {}
+    for sid, i in key.items():
+        p = result.atPose2(i)
+        out[sid] = (float(p.x()), float(p.y()), se2.wrap_angle(float(p.theta())))
+    return out
+
+
+def _state_order(sid: str) -> int:
+    return int(sid[1:]) if sid[1:].isdigit() else 0

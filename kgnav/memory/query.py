@@ -167,7 +167,9 @@ def summary(model: AbstractModel) -> dict:
         "episodes": model.episodes,
         "merged_from": model.merged_from,
         "loop_closures": {"kept": sum(c["kept"] for c in model.loop_closures),
-                          "rejected": sum(not c["kept"] for c in model.loop_closures)},
+                          "rejected": sum(not c["kept"] for c in model.loop_closures),
+                          "linked": sum(c["kept"] and "to" in c for c in model.loop_closures)},
+        "odometry_states": len(model.odometry),
         "extent": (
             {"x": [min(xs), max(xs)], "y": [min(ys), max(ys)]} if xs else None
         ),

@@ -68,7 +68,7 @@ INT64 = (-(2**63), 2**63 - 1)
 
 #: Schema versions this release reads. Version-1 files are accepted as they are; when a version
 #: adds attributes, :func:`upgrade` is where an older file's model gets them.
-READABLE_VERSIONS = (1, 2, 3, 4)
+READABLE_VERSIONS = (1, 2, 3, 4, 5)
 
 
 # ---------------------------------------------------------------------------------------- codecs
@@ -246,20 +246,58 @@ class JsonList(_String):
         return text
 
 
+def _finite_numbers(x, n: int, bound: float = MAX_COORD) -> bool:
+    return (isinstance(x, list) and len(x) == n
+            and all(type(v) in (int, float) and math.isfinite(v) and abs(v) <= bound
+                    for v in x))
+
+
 @dataclass(frozen=True)
 class LoopClosures(_String):
     """A JSON list of loop closures: ``{"state": "<model_id>/s<n>", "episode": <int>,
-    "kept": <bool>}`` each (:attr:`kgnav.memory.model.AbstractModel.loop_closures`)."""
+    "kept": <bool>}`` each (:attr:`kgnav.memory.model.AbstractModel.loop_closures`); from
+    schema 5 (``links``) a kept closure may also name the stored state it was measured against
+    and the relative pose, ``"to": "<model_id>/s<n>", "rel": [dx, dy, dtheta]``."""
+
+    links: bool = False
 
     def parse(self, text: str, ctx) -> str:
         for x in _json_list(text):
-            ok = (isinstance(x, dict) and set(x) == {"state", "episode", "kept"}
+            ok = (isinstance(x, dict) and {"state", "episode", "kept"} <= set(x)
                   and isinstance(x["state"], str) and _STATE_ORIGIN.fullmatch(x["state"])
                   and type(x["episode"]) is int and INT64[0] <= x["episode"] <= INT64[1]
                   and type(x["kept"]) is bool)
+            extra = set(x) - {"state", "episode", "kept"} if isinstance(x, dict) else set()
+            if ok and extra:
+                ok = (self.links and extra == {"to", "rel"} and isinstance(x["to"], str)
+                      and _STATE_ORIGIN.fullmatch(x["to"]) is not None
+                      and _finite_numbers(x["rel"], 3))
             if not ok:
+                link = ', "to": "model/sN", "rel": [dx, dy, dtheta]' if self.links else ""
                 raise ValueError(f"item {show(json.dumps(x))} is not a loop closure "
-                                 '({"state": "model/sN", "episode": N, "kept": true|false})')
+                                 f'({{"state": "model/sN", "episode": N, "kept": true|false'
+                                 f'{link}}})')
+        return text
+
+
+@dataclass(frozen=True)
+class OdometryRecords(_String):
+    """A JSON object: recorded state (``"<model_id>/s<n>"``) -> ``[step, x, y, theta, driven,
+    turned]``, the state's pose as its episode's odometry had it (that episode's own frame,
+    never corrected) and the distance driven and angle turned since the episode began
+    (:attr:`kgnav.memory.model.AbstractModel.odometry`)."""
+
+    def parse(self, text: str, ctx) -> str:
+        try:
+            value = json.loads(text)
+        except (ValueError, RecursionError):
+            raise ValueError(f"not JSON ({show(text)})") from None
+        if not isinstance(value, dict):
+            raise ValueError(f"not a JSON object ({show(text)})")
+        for k, v in value.items():
+            if not (_STATE_ORIGIN.fullmatch(k) and _finite_numbers(v, 6, 1e12)):
+                raise ValueError(f"item {show(json.dumps({k: v}))} is not an odometry record "
+                                 '("model/sN": [step, x, y, theta, driven, turned])')
         return text
 
 
@@ -396,6 +434,10 @@ ATTRIBUTES: tuple[Attr, ...] = (
     Attr("graph", "relocation_threshold", Double(0.0, 2.0), required=False, since=3),
     # version 4: the loop closures that bent episodes onto the model (absent: none recorded)
     Attr("graph", "loop_closures", LoopClosures(), required=False, since=4),
+    # version 5: each state's raw odometry, and kept loop closures as links to stored states,
+    # so that a model's pose graph can be optimised again at every merge (docs/drift.md)
+    Attr("graph", "loop_closures", LoopClosures(links=True), required=False, since=5),
+    Attr("graph", "odometry", OdometryRecords(), required=False, since=5),
 )
 
 DOMAIN = {
