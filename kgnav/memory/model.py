@@ -249,19 +249,22 @@ class AbstractModel:
             if (c["state"], c["episode"]) not in seen:
                 seen.add((c["state"], c["episode"]))
                 have.append(c)
-        if have:
-            self.graph.graph["loop_closures"] = json.dumps(have, separators=(",", ":"))
+        self._set_loop_closures(have)
+
+    def _set_loop_closures(self, closures: list[dict]) -> None:
+        if closures:
+            self.graph.graph["loop_closures"] = json.dumps(closures, separators=(",", ":"))
 
     def reject_loop_closures(self, closures: Iterable[dict]) -> None:
         """Mark recorded ``closures`` (matched by state and episode) as rejected: a link that
         a later optimisation of the model found contradicted stays on record, unused."""
         drop = {(str(c["state"]), int(c["episode"])) for c in closures}
         have = self.loop_closures
-        if drop and have:
+        if drop:
             for c in have:
                 if (c["state"], c["episode"]) in drop:
                     c["kept"] = False
-            self.graph.graph["loop_closures"] = json.dumps(have, separators=(",", ":"))
+            self._set_loop_closures(have)
 
     @property
     def odometry(self) -> dict[str, tuple[float, ...]]:

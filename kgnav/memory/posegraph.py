@@ -305,7 +305,8 @@ def straighten(model, drift: DriftModel, rejected: list | None = None,
                     worst.append(f)
         if not worst:
             break
-        factors = [f for f in factors if f not in worst]
+        drop = {id(f) for f in worst}
+        factors = [f for f in factors if id(f) not in drop]
         if rejected is not None:
             rejected.extend(f[5] for f in worst)
     out = {}

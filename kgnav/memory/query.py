@@ -153,6 +153,7 @@ def summary(model: AbstractModel) -> dict:
     actions = Counter(
         k for _, _, k, d in model.graph.edges(keys=True, data=True) if d["kind"] == "transition"
     )
+    closures = model.loop_closures  # parsed once: a JSON list held in the graph attributes
     return {
         "model_id": model.model_id,
         "schema_version": model.graph.graph["kgnav_schema"],
@@ -166,9 +167,9 @@ def summary(model: AbstractModel) -> dict:
         "actions": dict(sorted(actions.items())),
         "episodes": model.episodes,
         "merged_from": model.merged_from,
-        "loop_closures": {"kept": sum(c["kept"] for c in model.loop_closures),
-                          "rejected": sum(not c["kept"] for c in model.loop_closures),
-                          "linked": sum(c["kept"] and "to" in c for c in model.loop_closures)},
+        "loop_closures": {"kept": sum(c["kept"] for c in closures),
+                          "rejected": sum(not c["kept"] for c in closures),
+                          "linked": sum(c["kept"] and "to" in c for c in closures)},
         "odometry_states": len(model.odometry),
         "extent": (
             {"x": [min(xs), max(xs)], "y": [min(ys), max(ys)]} if xs else None

@@ -216,15 +216,21 @@ class Text(_String):
         return text
 
 
-def _json_list(text: str) -> list:
-    """``text`` parsed as a JSON list, or a ValueError that shows it."""
+def _json(text: str, kind: type, name: str):
+    """``text`` parsed as JSON of type ``kind`` (``name`` in the message), or a ValueError
+    that shows it."""
     try:
         value = json.loads(text)
     except (ValueError, RecursionError):
         raise ValueError(f"not JSON ({show(text)})") from None
-    if not isinstance(value, list):
-        raise ValueError(f"not a JSON list ({show(text)})")
+    if not isinstance(value, kind):
+        raise ValueError(f"not a JSON {name} ({show(text)})")
     return value
+
+
+def _json_list(text: str) -> list:
+    """``text`` parsed as a JSON list, or a ValueError that shows it."""
+    return _json(text, list, "list")
 
 
 @dataclass(frozen=True)
@@ -288,13 +294,7 @@ class OdometryRecords(_String):
     (:attr:`kgnav.memory.model.AbstractModel.odometry`)."""
 
     def parse(self, text: str, ctx) -> str:
-        try:
-            value = json.loads(text)
-        except (ValueError, RecursionError):
-            raise ValueError(f"not JSON ({show(text)})") from None
-        if not isinstance(value, dict):
-            raise ValueError(f"not a JSON object ({show(text)})")
-        for k, v in value.items():
+        for k, v in _json(text, dict, "object").items():
             if not (_STATE_ORIGIN.fullmatch(k) and _finite_numbers(v, 6, 1e12)):
                 raise ValueError(f"item {show(json.dumps({k: v}))} is not an odometry record "
                                  '("model/sN": [step, x, y, theta, driven, turned])')
