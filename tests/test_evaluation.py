@@ -75,6 +75,23 @@ def test_wrong_merges_and_bridges_are_counted_from_ground_truth():
     assert s["late_merges"] == 1 and s["wrong_merges"] == 3 and s["wrong_bridges"] == 3
 
 
+def test_a_merge_is_judged_by_where_it_laid_the_episode():
+    """With ``placed`` (where the merge laid the episode's states), that decides, not the
+    transform judged where the relocation was made; ``wrong_merges_local`` judges against
+    the stored model's own place, so a merge onto a bent model is not counted twice."""
+    def rec(error_m, placed):
+        return {"variant": "si", "scene": "h", "success": True, "spl": 1.0, "softspl": 1.0,
+                "dts": 0.0, "relocated": True, "failure": None,
+                "relocation": {"same_house": True, "merged": True, "error_m": error_m,
+                               "error_deg": 0.0, "placed": placed}}
+    recs = [rec(1.4, {"error_m": 0.3, "error_deg": 1.0, "local_error_m": 0.05}),  # drifted
+            rec(0.2, {"error_m": 1.3, "error_deg": 2.0, "local_error_m": 0.1}),   # bent model
+            rec(0.2, {"error_m": 2.5, "error_deg": 2.0, "local_error_m": 2.0}),   # truly off
+            rec(0.2, {"error_m": 0.2, "error_deg": 40.0})]                       # turned
+    s = summarize(recs)["si"]
+    assert s["wrong_merges"] == 3 and s["wrong_merges_local"] == 2
+
+
 def test_joins_and_wrong_joins_are_counted_from_ground_truth():
     def rec(joins):
         return {"variant": "si", "scene": "h", "success": True, "spl": 1.0, "softspl": 1.0,

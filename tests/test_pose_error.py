@@ -160,6 +160,10 @@ def test_summary_scores_the_stored_poses(runs):
     assert h["states"] == e["states"] and h["p95"] < 1e-2 and house["heading_error_deg"] == h
     hn = runs["locobot"]["si"]["memory"]["pooled"]["heading_error_deg"]
     assert hn["states"] == noisy["states"] and hn["median"] > 0.05
+    s = runs["locobot"]["si"]  # relocated once: judged as made, and step by step after it
+    assert s["relocation_rate"] > 0 and s["relocation_error_m"] is not None
+    assert s["relocation_local_m"] < 0.1 and s["relocation_tracking_local_m"] < 0.1
+    assert s["relocation_tracking_m"] is not None and "wrong_merges_local" in s
 
 
 class _Starts:
@@ -192,3 +196,61 @@ def test_with_drift_a_relocation_is_judged_by_where_the_agent_truly_was():
     assert _relocation_error(gt, "h-e000", T, at, 40)["error_m"] == 0.0
     assert _relocation_error(gt, "h-e000", T, at, 41)["error_m"] == pytest.approx(0.4, abs=1e-3)
     assert _relocation_error(gt, "other-e000", T, at, 40) == {}
+
+
+class _Memory:
+    def __init__(self, model):
+        self._m = model
+
+    def model(self, mid):
+        return self._m if mid == self._m.model_id else None
+
+
+def test_a_relocation_is_judged_against_the_truth_and_against_the_model_as_stored():
+    """A stored model bent 0.5 m to the side of the truth where the agent is: a transform that
+    lays the agent on the model as stored is 0.5 m off the truth but right against the
+    stored model; one that lays it on the truth is the opposite. The steps after the
+    relocation are judged with the transform standing at each, and a merge by where it laid
+    the episode's states."""
+    from types import SimpleNamespace
+
+    from kgnav.benchmark.runner import _GroundTruth, _placement, _Tracking
+
+    starts = {0: (0.0, 0.0, 0.0), 1: (2.0, 1.0, 0.5)}
+    gt = _GroundTruth(_Starts(starts), "h", 1)
+    # the stored model h-e000: states around (4..6, 0..1), stored 0.5 m up (+y) of the truth
+    true_xy = [(x, y) for x in (4.0, 5.0, 6.0) for y in (0.0, 1.0)]
+    stored = _model("h-e000", [(x, y + 0.5, 0.0) for x, y in true_xy])
+    truth = {f"h-e000/s{i}": (x, y, 0.0) for i, (x, y) in enumerate(true_xy)}
+    tracking = _Tracking(gt, _Memory(stored), truth)
+    # the agent's odometry (episode 1's frame) at step 3: truly at world (5, 0.5)
+    inv1 = se2.inverse(starts[1])
+    at = se2.apply_to_point(inv1, 5.0, 0.5)
+    path = [None, None, None, (5.0, 0.5, 0.0)]
+    on_truth = se2.compose(se2.inverse(starts[0]), starts[1])  # episode -> model, exact
+    on_model = se2.compose((0.0, 0.5, 0.0), on_truth)          # ... onto the bent model
+    e_truth, l_truth = tracking.errors_at("h-e000", on_truth, at, 3, path)
+    e_model, l_model = tracking.errors_at("h-e000", on_model, at, 3, path)
+    assert e_truth == pytest.approx(0.0, abs=1e-9) and l_truth == pytest.approx(0.5)
+    assert e_model == pytest.approx(0.5) and l_model == pytest.approx(0.0, abs=1e-9)
+    # far from every stored state, nothing says where the model has the place
+    assert tracking.errors_at("h-e000", on_model, at, 0, [(20.0, 20.0, 0.0)])[1] is None
+    assert tracking.errors_at("other-e000", on_model, at, 3, path) is None
+
+    tracking.note(SimpleNamespace(model_id="h-e000", transform=on_model), (*at, 0.0), path, 3)
+    tracking.note(None, (*at, 0.0), path, 3)  # not relocated: nothing noted
+    reloc = SimpleNamespace(model_id="h-e000", made=on_model, transform=on_truth, at=at,
+                            step=3, late=False)
+    out = tracking.summary(reloc, path)
+    assert out["local_error_m"] == pytest.approx(0.0, abs=1e-6)  # judged as made, not later
+    assert out["tracking_error_m"] == pytest.approx(0.5) and out["tracking_local_m"] == 0.0
+
+    # a merge: the episode's states (in its own frame) laid by on_model
+    ep = _model("h-e001", [(*se2.apply_to_point(inv1, x, y), -0.5) for x, y in true_xy])
+    ep_path = [(x, y, 0.0) for x, y in true_xy]
+    for sid, k in zip(ep.states(), range(len(true_xy)), strict=True):
+        ep.graph.nodes[sid]["step"] = k
+    placed = _placement(gt, "h-e000", on_model, ep, ep_path, tracking)
+    assert placed["error_m"] == pytest.approx(0.5) and placed["local_error_m"] == 0.0
+    assert placed["error_deg"] == pytest.approx(0.0, abs=1e-6)
+    assert _placement(gt, "other-e000", on_model, ep, ep_path) == {}

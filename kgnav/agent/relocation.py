@@ -114,6 +114,14 @@ class Relocation:
     conflicts: float | None = None
     points: int = 0  # points the verification judged
     late: bool = False  # found at the episode's end from all its states, not while navigating
+    # the transform as accepted at ``step``: ``transform`` is refined as the episode goes on
+    # (and, with drift, follows the odometry away from ``at``), so only this one says how
+    # precisely the relocation placed the agent where it was made
+    made: tuple[float, float, float] | None = None
+
+    def __post_init__(self):
+        if self.made is None:
+            self.made = tuple(self.transform)
 
 
 @dataclass

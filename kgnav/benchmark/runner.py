@@ -413,8 +413,13 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     if cfg.noise_spec.active:  # with drift, judge relocations by where the agent truly was
         gt.path = path
     done, steps = False, 0
+    tracking = (_Tracking(gt, memory, _ROUND.get("truth", {}).get(name, {}))
+                if memory is not None else None)
     while not done:
-        obs, _r, term, trunc, info = env.step(agent.act(obs))
+        action = agent.act(obs)
+        if tracking is not None:
+            tracking.note(agent.relocation_, obs.get("pose"), path, steps)
+        obs, _r, term, trunc, info = env.step(action)
         check_observation(obs, spec, labels)
         steps += 1
         done = term or trunc
@@ -474,6 +479,8 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     if reloc is not None:
         record["relocation"] = {"distance": round(float(reloc.distance), 4),
                                 **_relocation_fields(gt, reloc)}
+        if tracking is not None:
+            record["relocation"].update(tracking.summary(reloc, path))
     rel = getattr(agent, "relocalizer", None)
     into = agent.mergeable() if variant.learns else None  # (the merge checks count decisions)
     if rel is not None:  # why hypotheses were accepted or refused, and bridges found
@@ -491,6 +498,12 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
                                         _at_step(reloc))}
         if into is not None and into.late:  # found from the whole episode at its end
             record["late_merge"] = _relocation_fields(gt, into)
+        if into is not None:  # where the merge lays the episode's states (bent, if drifting)
+            placed = _placement(gt, into.model_id, into.transform, agent.model_, path,
+                                tracking)
+            if placed:
+                (record["late_merge"] if into.late
+                 else record["relocation"])["placed"] = placed
         if into is not None and rel.bridges:
             bridges = {mid: v.transform for mid, v in rel.bridges.items()}
             record["bridges"] = [
@@ -608,8 +621,8 @@ def _relocation_fields(gt: _GroundTruth, reloc) -> dict:
            "checked": reloc.checked, "supported": reloc.supported}
     if reloc.inliers is not None:
         out.update(inliers=reloc.inliers, conflicts=reloc.conflicts, points=reloc.points)
-    return {**out, **_relocation_error(gt, reloc.model_id, reloc.transform, reloc.at,
-                                       _at_step(reloc))}
+    return {**out, **_relocation_error(gt, reloc.model_id, reloc.made or reloc.transform,
+                                       reloc.at, _at_step(reloc))}
 
 
 def _at_step(reloc) -> int:
@@ -651,6 +664,135 @@ def _relocation_error(gt: _GroundTruth, model_id: str, transform, at, step=None)
         tx, ty = se2.apply_to_point(se2.inverse(frame), *path[step][:2])
     return {"error_m": round(math.hypot(ex - tx, ey - ty), 3),
             "error_deg": round(math.degrees(se2.angle_diff(transform[2], truth[2])), 2)}
+
+
+class _Tracking:
+    """Where the agent believed it was in the memory, step by step, against where it was:
+    after each step's decision, the standing relocation's transform (as refined by then)
+    applied to the odometry's position, against the true position in that model's frame.
+    A relocation judged only where it was made says nothing of the steps after it, when a
+    drifting odometry carries the agent away from the transform found then.
+
+    Each error is measured twice: against the truth in the model's frame (the frame of the
+    episode that created it), and against where the stored model has that place (the true
+    position moved by the median offset of the stored states within ``LOCAL_RADIUS`` of it,
+    stored against true). A stored model bent by its creators' drift has a place elsewhere
+    than the truth; a relocation that lays the agent on the model as stored is right for
+    everything the model holds there, and the first measure counts the bend against it."""
+
+    def __init__(self, gt: _GroundTruth, memory: Memory | None, truth: dict):
+        self.gt, self.memory, self.truth = gt, memory, truth
+        self.errors: list[float] = []
+        self.local: list[float] = []
+        self._frames: dict[str, tuple | None] = {}
+        self._stored: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    def _frame(self, mid: str):
+        if mid not in self._frames:
+            self._frames[mid] = _model_frame(self.gt, mid)
+        return self._frames[mid]
+
+    def _offset(self, mid: str, q: tuple[float, float]) -> tuple[float, float] | None:
+        """How far the stored model has the true place ``q`` (model frame) moved: the median
+        (stored - true) of the stored states with a known truth within LOCAL_RADIUS."""
+        if mid not in self._stored:
+            stored, true = [], []
+            model = self.memory.model(mid) if self.memory is not None else None
+            inv = se2.inverse(self._frame(mid))
+            if model is not None:
+                for sid in model.states():
+                    d = model.graph.nodes[sid]
+                    t = self.truth.get(d["origin"].split(" ", 1)[0])
+                    if t is not None:
+                        stored.append((d["x"], d["y"]))
+                        true.append(se2.apply_to_point(inv, t[0], t[1]))
+            self._stored[mid] = (np.asarray(stored, np.float64).reshape(-1, 2),
+                                 np.asarray(true, np.float64).reshape(-1, 2))
+        stored, true = self._stored[mid]
+        near = np.hypot(true[:, 0] - q[0], true[:, 1] - q[1]) <= LOCAL_RADIUS
+        if near.sum() < 3:
+            return None
+        dx, dy = np.median(stored[near] - true[near], axis=0)
+        return float(dx), float(dy)
+
+    def errors_at(self, mid: str, transform, at, step: int, path: list
+                  ) -> tuple[float, float | None] | None:
+        """The error of ``transform`` at the odometry position ``at`` of ``step``: against
+        the truth, and against the model as stored (None where it holds no state near)."""
+        frame = self._frame(mid)
+        if frame is None or at is None or not 0 <= step < len(path) or path[step] is None:
+            return None
+        bx, by = se2.apply_to_point(transform, float(at[0]), float(at[1]))
+        tx, ty = se2.apply_to_point(se2.inverse(frame), *path[step][:2])
+        off = self._offset(mid, (tx, ty))
+        local = None if off is None else math.hypot(bx - tx - off[0], by - ty - off[1])
+        return math.hypot(bx - tx, by - ty), local
+
+    def note(self, reloc, pose, path: list, step: int) -> None:
+        if reloc is None or pose is None:
+            return
+        pose = np.asarray(pose, np.float64).reshape(-1)
+        e = self.errors_at(reloc.model_id, reloc.transform, pose[:2], step, path)
+        if e is not None:
+            self.errors.append(e[0])
+            if e[1] is not None:
+                self.local.append(e[1])
+
+    def summary(self, reloc, path: list) -> dict:
+        """What ``episodes.jsonl`` adds to the relocation: its error where it was made
+        against the stored model (``local_error_m``), and the median over the steps after it
+        (``tracking_error_m``, ``tracking_local_m``)."""
+        out = {}
+        if not reloc.late:
+            e = self.errors_at(reloc.model_id, reloc.made or reloc.transform, reloc.at,
+                               reloc.step, path)
+            if e is not None and e[1] is not None:
+                out["local_error_m"] = round(e[1], 3)
+        if self.errors:
+            out["tracking_error_m"] = round(float(np.median(self.errors)), 3)
+        if self.local:
+            out["tracking_local_m"] = round(float(np.median(self.local)), 3)
+        return out
+
+
+def _placement(gt: _GroundTruth, model_id: str, transform, episode: AbstractModel,
+               path: list, tracking: _Tracking | None = None) -> dict:
+    """How far a merge lays the episode's states from where they truly were: each state's
+    pose (bent by the loop closures when the odometry drifts) mapped by ``transform`` into
+    the model's frame, against its true pose there; the median position error (m) and
+    median heading error (degrees) over the states, and (with ``tracking``, which knows the
+    stored model) the median position error against where the stored model has each place
+    (``local_error_m``). Empty for another house's model, or without the true path. With a
+    drifting odometry this, not the transform judged at one step, says whether a merge put
+    the episode where it belongs."""
+    frame = _model_frame(gt, model_id)
+    if frame is None or not path:
+        return {}
+    inv = se2.inverse(frame)
+    dist, deg, local = [], [], []
+    g = episode.graph
+    for sid in episode.states():
+        d = g.nodes[sid]
+        k = int(d.get("step", -1))
+        if not 0 <= k < len(path) or path[k] is None:
+            continue
+        x, y = se2.apply_to_point(transform, d["x"], d["y"])
+        tx, ty = se2.apply_to_point(inv, *path[k][:2])
+        dist.append(math.hypot(x - tx, y - ty))
+        off = tracking._offset(model_id, (tx, ty)) if tracking is not None else None
+        if off is not None:
+            local.append(math.hypot(x - tx - off[0], y - ty - off[1]))
+        if len(path[k]) > 2:
+            deg.append(abs(math.degrees(se2.angle_diff(d["theta"] + transform[2],
+                                                        path[k][2] - frame[2]))))
+    if not dist:
+        return {}
+    out = {"error_m": round(float(np.median(dist)), 3)}
+    if deg:
+        out["error_deg"] = round(float(np.median(deg)), 2)
+    if local:
+        out["local_error_m"] = round(float(np.median(local)), 3)
+    return out
 
 
 def _run_task(context: dict, task) -> Outcome:
@@ -798,6 +940,7 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
                 context = {}
                 if variant.memory:
                     context["memory"] = Memory(models, threshold=threshold)
+                    context["truth"] = truth  # scoring only: where the stored states truly are
                 if variant.policy == "semantic":
                     context["cooccurrence"] = cooccurrence(models.values())
             tasks = [(cfg, variant, s, r, r, extractor_name, _topdown_path(cfg, out, variant, s, r))
@@ -935,6 +1078,7 @@ def absorb(models: dict[str, AbstractModel], o: Outcome, forget_below: float = 0
 
 
 STORES = ("directory", "ladybug")
+LOCAL_RADIUS = 1.5  # m: the stored states that say where a model has a place
 
 
 def memory_path(out: Path, name: str, store: str = "directory") -> Path:
@@ -1053,11 +1197,21 @@ def summarize(records: Iterable[dict], seed: int = 0) -> dict[str, dict]:
             "relocation_same_house": (sum(r["relocation"]["same_house"] for r in reloc)
                                       / len(reloc)) if reloc else None,
             "relocation_error_m": _median([r["relocation"].get("error_m") for r in reloc]),
+            "relocation_local_m": _median([r["relocation"].get("local_error_m")
+                                           for r in reloc]),
+            "relocation_tracking_m": _median([r["relocation"].get("tracking_error_m")
+                                              for r in reloc]),
+            "relocation_tracking_local_m": _median([r["relocation"].get("tracking_local_m")
+                                                    for r in reloc]),
             "relocation_step": _median([r["relocation"].get("step") for r in reloc]),
             **_later_relocation(recs),
             "late_merges": sum(1 for r in recs if "late_merge" in r),
             "wrong_merges": sum(1 for r in recs for m in _merges(r)
                                 if not m["same_house"] or _wrong(m)),
+            # ... judged against the model as stored, not against the truth: a model bent
+            # by its creators' drift is scored by pose_error_m, not here again
+            "wrong_merges_local": sum(1 for r in recs for m in _merges(r)
+                                      if not m["same_house"] or _wrong(m, local=True)),
             "joins": sum(len(r.get("joins", ())) for r in recs),
             "wrong_joins": sum(1 for r in recs for j in r.get("joins", ())
                                if not j["same_house"] or _wrong(j)),
@@ -1139,16 +1293,26 @@ def _not_in_memory_vs_ans(name: str, recs: list[dict], ans: list[dict], seed: in
 
 
 def _merges(record: dict):
-    """What an episode was merged into: its relocation, if merged, or its late match."""
+    """What an episode was merged into: its relocation, if merged, or its late match; judged
+    by where the merge laid the episode's states (``placed``) where that is known, else by
+    the transform where it was made."""
     if record.get("relocated") and record["relocation"].get("merged"):
-        yield record["relocation"]
+        yield _as_merged(record["relocation"])
     if "late_merge" in record:
-        yield record["late_merge"]
+        yield _as_merged(record["late_merge"])
 
 
-def _wrong(fields: dict) -> bool:
-    """A frame transform more than 1 m or 30 degrees off the truth."""
-    return fields.get("error_m", 0) > 1.0 or abs(fields.get("error_deg", 0)) > 30
+def _as_merged(fields: dict) -> dict:
+    placed = fields.get("placed")
+    return {**fields, **placed} if placed else fields
+
+
+def _wrong(fields: dict, local: bool = False) -> bool:
+    """A frame transform more than 1 m or 30 degrees off the truth (``local``: 1 m off
+    where the stored model has the place, where that is known)."""
+    error = fields.get("local_error_m", fields.get("error_m", 0)) if local else \
+        fields.get("error_m", 0)
+    return error > 1.0 or abs(fields.get("error_deg", 0)) > 30
 
 
 def _later_relocation(recs: list[dict]) -> dict:

@@ -238,7 +238,8 @@ def print_summary(summary: dict) -> None:
     mem = {n: s for n, s in summary.items() if "memory" in s}
     if mem:
         t3 = Table("variant", "reloc. after 1st (min/mean)", "reloc. step",
-                   "wrong merges (bridges, joins)",
+                   "reloc. err. m: made / tracking (vs stored)",
+                   "wrong merges (bridges, joins; merges vs stored)",
                    "models/house", "objects", "precision (trusted)", "copies", "recall",
                    "pose err. m, heading ° (median / p95)",
                    title="Relocation and memory fidelity (against ground truth)")
@@ -248,8 +249,12 @@ def print_summary(summary: dict) -> None:
             t3.add_row(
                 name, "–" if lo is None else f"{lo:.2f} / {mean:.2f}",
                 "–" if s.get("relocation_step") is None else f"{s['relocation_step']:.0f}",
+                f"{_f(s.get('relocation_error_m'))} / {_f(s.get('relocation_tracking_m'))} "
+                f"({_f(s.get('relocation_local_m'))} / "
+                f"{_f(s.get('relocation_tracking_local_m'))})",
                 f"{s.get('wrong_merges', 0)} ({s.get('wrong_bridges', 0)}, "
-                f"{s.get('wrong_joins', 0)} of {s.get('joins', 0)})",
+                f"{s.get('wrong_joins', 0)} of {s.get('joins', 0)}; "
+                f"{s.get('wrong_merges_local', 0)})",
                 " ".join(f"{k}:{v}" for k, v in p["models_per_house"].items()),
                 str(p["objects"]), f"{_f(p['precision'])} ({_f(p['trusted_precision'])})",
                 _f(p["copies"]), _f(p["recall"]),
