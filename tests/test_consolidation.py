@@ -12,6 +12,7 @@ from kgnav.agent.consolidation import consolidate, find_join
 from kgnav.agent.relocation import RelocationConfig
 from kgnav.common import se2
 from kgnav.memory.model import AbstractModel
+from kgnav.memory.query import summary
 from tests.test_relocation import (
     DIM,
     EAST_WALK,
@@ -194,3 +195,72 @@ def test_a_memory_leaves_a_model_out_for_a_block_and_takes_it_back_unchanged():
     mem.update(_model("a-e000", ROOM_A, WALK[:4]))  # a changed model: indexed and mapped anew
     assert mem.models["a-e000"].n_states == 4 and mem.geometry("a-e000") is not geo
     assert mem.drop("a-e001") is b and list(mem.models) == ["a-e000"]
+
+
+def _bent_walk(model_id: str, walls, world_poses, bend, features) -> AbstractModel:
+    """A model whose states saw ``walls`` from ``world_poses`` but stored them where a
+    drifting odometry had them, ``bend(world) -> stored``, with that odometry recorded."""
+    m = AbstractModel(DIM, model_id=model_id, extractor="toy", scan=SCAN)
+    odo, driven, turned, prev = {}, 0.0, 0.0, None
+    for k, world in enumerate(world_poses):
+        stored = bend(world)
+        sid = m.add_state(unit(features[k]), stored, (), step=k, ranges=cast(walls, world))
+        if prev is not None:
+            driven += math.dist(prev[:2], stored[:2])
+            turned += se2.angle_diff(prev[2], stored[2])
+        odo[f"{model_id}/{sid}"] = [k, *stored, driven, turned]
+        prev = stored
+    m.add_odometry(odo)
+    return m
+
+
+def test_with_drift_a_join_links_the_parts_that_fit_and_straightens_the_bend():
+    """Model b walked both rooms of house 1 with an odometry that turned 8 degrees about the
+    door (and slid 0.2 m) on the way into the east room: stored, its east room is bent off
+    the truth. One rigid transform joins b to a (the truth) only on average; with the drift
+    model, the stretches of b that fit a on their own become links and the joined model's
+    pose graph lays b's east room back where a has it; links confined to one spot
+    (``join_link_span``) are not used."""
+    from kgnav.memory.constants import JOIN_EPISODE
+    from kgnav.memory.posegraph import DriftModel
+
+    walk = WALK[:6] + EAST_WALK + WALK[6:] + EAST_WALK[:4]
+    door = (6.0, 2.0)
+    twist = se2.compose(se2.compose((*door, math.radians(8)), (-door[0], -door[1], 0.0)),
+                        (0.0, 0.2, 0.0))
+
+    def bend(world):  # the east room (x > 6) as the drifting odometry had it
+        return se2.compose(twist, world) if world[0] > 6.0 else tuple(world)
+
+    feats = [k % DIM for k in range(len(walk))]
+    cfg = RelocationConfig(closure_window=4)
+    truth = {k: w for k, w in enumerate(walk)}
+
+    def error(models) -> float:
+        (m,) = models.values()  # b's states, found by their records (step: where they were)
+        out = [math.dist(m.pose(m.known_node(o))[:2], truth[int(rec[0])][:2])
+               for o, rec in m.odometry.items()]
+        return float(np.median(out)), float(np.max(out))
+
+    results = {}
+    for drift in (None, DriftModel()):
+        a = _model("a-e000", HOUSE_1, walk, features=feats, extra=6)
+        b = _bent_walk("a-e003", HOUSE_1, walk, bend, feats)
+        models = {"a-e000": a, "a-e003": b}
+        joins = consolidate(models, ["a-e003"], threshold=0.05, config=cfg, drift=drift)
+        assert [(j.model_id, j.into) for j in joins] == [("a-e003", "a-e000")]
+        results[drift is not None] = error(models), joins[0]
+    (rigid_med, rigid_max), j0 = results[False]
+    (joint_med, joint_max), j1 = results[True]
+    assert j0.links == () and len(j1.links) >= 3
+    assert all(c["episode"] == JOIN_EPISODE and c["to"].startswith("a-e000/") for c in j1.links)
+    joined = next(iter(models.values()))  # (the run with the drift model)
+    assert summary(joined)["loop_closures"]["joins"] == len(j1.links)
+    assert rigid_max > 0.15  # one transform cannot fit both rooms
+    assert joint_med < 0.5 * rigid_med and joint_max < 0.7 * rigid_max  # 0.09/0.22 -> 0.03/0.14
+    # the same links, demanded to spread wider than the house: none, and the rigid join
+    a = _model("a-e000", HOUSE_1, walk, features=feats, extra=6)
+    models = {"a-e000": a, "a-e003": _bent_walk("a-e003", HOUSE_1, walk, bend, feats)}
+    (j2,) = consolidate(models, ["a-e003"], threshold=0.05, drift=DriftModel(),
+                        config=RelocationConfig(closure_window=4, join_link_span=20.0))
+    assert j2.links == () and error(models) == pytest.approx((rigid_med, rigid_max))

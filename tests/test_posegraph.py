@@ -298,9 +298,10 @@ def test_inspect_and_the_html_export_show_the_loop_closures(tmp_path):
     from kgnav.memory.html import build_network
 
     m = _closed(_model_with_objects())
-    assert query.summary(m)["loop_closures"] == {"kept": 1, "rejected": 1, "linked": 0}
+    assert query.summary(m)["loop_closures"] == {"kept": 1, "rejected": 1, "linked": 0,
+                                                 "joins": 0}
     assert query.summary(_model_with_objects())["loop_closures"] == {"kept": 0, "rejected": 0,
-                                                                     "linked": 0}
+                                                                     "linked": 0, "joins": 0}
     net = build_network(m, title="t")
     marked = {n["id"]: n for n in net.nodes if n.get("shape") == "diamond"}
     assert set(marked) == {"s0", "s2"}
@@ -586,7 +587,7 @@ def test_inspect_and_the_html_export_show_links_and_odometry(tmp_path):
     truth, stored, episode, _ = _two_laps()
     m = merge(stored, episode, transform=(0.0, 0.0, 0.0))
     info = query.summary(m)
-    assert info["loop_closures"] == {"kept": 5, "rejected": 0, "linked": 5}
+    assert info["loop_closures"] == {"kept": 5, "rejected": 0, "linked": 5, "joins": 0}
     assert info["odometry_states"] == 2 * len(truth)
     net = build_network(m, title="t")
     linked = [n for n in net.nodes if "linked to state" in n.get("title", "")]

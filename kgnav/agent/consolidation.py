@@ -33,6 +33,7 @@ from kgnav.common import se2
 from kgnav.memory.evidence import forget
 from kgnav.memory.merge import merge
 from kgnav.memory.model import AbstractModel
+from kgnav.memory.posegraph import bend, straighten
 
 __all__ = ["Join", "consolidate", "find_join"]
 
@@ -49,10 +50,13 @@ class Join:
     conflicts: float
     points: int
     centre: tuple[float, float] = (0.0, 0.0)  # the mean of ``model_id``'s state positions
+    # loop closures linking ``model_id``'s states to ``into``'s, where stretches of them fit
+    # on their own (Relocalizer.model_links; only asked for with a drift model)
+    links: tuple = ()
 
 
 def find_join(models: dict[str, AbstractModel], model_id: str, *, threshold: float,
-              config=None, memory=None) -> Join | None:
+              config=None, memory=None, links: bool = False) -> Join | None:
     """Whether the stored model ``model_id`` verifiably fits another of ``models`` as a
     whole (see the module docstring): the best such fit, as a :class:`Join` of ``model_id``
     into that model, or None. ``threshold``: the relocation feature-distance threshold;
@@ -60,7 +64,7 @@ def find_join(models: dict[str, AbstractModel], model_id: str, *, threshold: flo
     settings; the whole-model check is always made). ``memory``: a
     :class:`~kgnav.agent.memory.Memory` over ``models`` to reuse (its relocator and the
     occupancy it has built; ``model_id`` is taken out of it while judged and put back), else
-    one is built."""
+    one is built. ``links``: also find the join's links (:attr:`Join.links`)."""
     from kgnav.agent.memory import Memory
     from kgnav.agent.relocation import Relocalizer, RelocationConfig
 
@@ -77,30 +81,38 @@ def find_join(models: dict[str, AbstractModel], model_id: str, *, threshold: flo
                   if k != model_id and (m.feature_dim, m.extractor) == kind}
         if not others:
             return None
-        return _judge(Relocalizer(Memory(others, threshold=threshold), cfg), model)
+        return _judge(Relocalizer(Memory(others, threshold=threshold), cfg), model, links)
     if len(memory.models) < 2:
         return None
     with memory.without(model_id):
-        return _judge(Relocalizer(memory, cfg), model)
+        return _judge(Relocalizer(memory, cfg), model, links)
 
 
-def _judge(rel, model: AbstractModel) -> Join | None:
+def _judge(rel, model: AbstractModel, links: bool = False) -> Join | None:
     rel.take_model(model)
     r = rel.mergeable(model)
     if r is None:
         return None
-    return Join(model.model_id, r.model_id, tuple(float(v) for v in r.transform),
-                float(r.inliers or 0.0), float(r.conflicts or 0.0), int(r.points))
+    T = tuple(float(v) for v in r.transform)
+    return Join(model.model_id, r.model_id, T, float(r.inliers or 0.0),
+                float(r.conflicts or 0.0), int(r.points),
+                links=tuple(rel.model_links(model, r.model_id, T)) if links else ())
 
 
 def consolidate(models: dict[str, AbstractModel], changed: Iterable[str], *, threshold: float,
                 config=None, forget_below: float = 0.0,
-                forget_label_share: float = 0.0) -> list[Join]:
+                forget_label_share: float = 0.0, drift=None) -> list[Join]:
     """Join each model of ``changed`` (in that order) with the stored model it verifiably fits
     (:func:`find_join`), again with the joined model until it fits none; ``models`` (id ->
     model) changes in place. The smaller of two (fewer states) is folded into the larger,
     which keeps its id and frame. Objects are then forgotten as the memory update forgets
     them (``forget_below``, ``forget_label_share``). Returns the joins made, in order.
+
+    With ``drift`` (the odometry's :class:`~kgnav.memory.posegraph.DriftModel`), a join is not
+    only one rigid transform: stretches of the folded model that fit the other on their own
+    are recorded as links (:attr:`Join.links`, loop closures of episode
+    :data:`~kgnav.memory.constants.JOIN_EPISODE`), and the joined model's pose graph is
+    optimised again (:func:`~kgnav.memory.posegraph.straighten`), as after a merge.
 
     One relocator and one occupancy cache serve every model judged (the models of the first
     changed one's extractor and feature size; another kind is judged on its own)."""
@@ -119,16 +131,21 @@ def consolidate(models: dict[str, AbstractModel], changed: Iterable[str], *, thr
             continue
         same = (models[mid].feature_dim, models[mid].extractor) == kind
         j = find_join(models, mid, threshold=threshold, config=config,
-                      memory=pool if same else None)
+                      memory=pool if same else None, links=drift is not None)
         if j is None:
             continue
         small, big = models[j.model_id], models[j.into]
         if small.n_states > big.n_states:  # fold the other way: the larger keeps its frame
             j = Join(j.into, j.model_id, se2.inverse(j.transform), j.inliers, j.conflicts,
-                     j.points)
+                     j.points, links=tuple(_reversed(c) for c in j.links))
             small, big = big, small
         j = replace(j, centre=_centroid(small))
         joined = merge(big, small, transform=j.transform)
+        if drift is not None:
+            joined.add_loop_closures(j.links)
+            rejected: list[dict] = []
+            bend(joined, straighten(joined, drift, rejected))
+            joined.reject_loop_closures(rejected)
         if forget_below > 0 or forget_label_share > 0:
             forget(joined, forget_below, min_label_share=forget_label_share)
         del models[j.model_id]
@@ -139,6 +156,12 @@ def consolidate(models: dict[str, AbstractModel], changed: Iterable[str], *, thr
         joins.append(j)
         queue.insert(0, j.into)  # the joined model may now fit yet another
     return joins
+
+
+def _reversed(link: dict) -> dict:
+    """The same link seen from its other end."""
+    return {**link, "state": link["to"], "to": link["state"],
+            "rel": [float(v) for v in se2.inverse(tuple(link["rel"]))]}
 
 
 def _centroid(model: AbstractModel) -> tuple[float, float]:

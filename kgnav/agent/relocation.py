@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from kgnav.common import se2
+from kgnav.memory.constants import JOIN_EPISODE
 from kgnav.memory.evidence import MISS_RANGE
 from kgnav.memory.geometry import OccupancyGrid, occupancy_from_scans
 from kgnav.memory.posegraph import Anchor, Correction, DriftModel, correct, travelled
@@ -95,6 +96,9 @@ class RelocationConfig:
     # episode, when one lies this close (m); merges then optimise the whole model's pose
     # graph (kgnav.memory.posegraph.straighten) with every recorded episode's odometry
     link_radius: float = 1.5
+    # a join's links are used only if they spread over at least this (m): links in one spot
+    # pin the folded model's turn worse than the rigid fit of the whole model does
+    join_link_span: float = 3.0
     joint: bool = True  # re-optimise the stored model at each merge (with a drift model)
 
 
@@ -760,6 +764,65 @@ class Relocalizer:
             to = st_ids[j]
             rel = se2.compose(se2.inverse((sg[to]["x"], sg[to]["y"], sg[to]["theta"])), at)
             out[f"{episode.model_id}/{ids[k]}"] = (sg[to]["origin"].split()[0], rel)
+        return out
+
+    def model_links(self, model, model_id: str, T) -> list[dict]:
+        """Links for a whole stored ``model`` (taken with :meth:`take_model`) that fits stored
+        model ``model_id`` by ``T`` (a join, :mod:`kgnav.agent.consolidation`): its states,
+        ``closure_window`` at a time in the order it stored them, each stretch aligned on its
+        own to ``model_id``'s obstacles starting from ``T`` and kept only where it verifies;
+        the middle state of each kept stretch linked to the nearest state of ``model_id``
+        (within ``link_radius``) with its pose relative to it, as loop closures to record
+        (episode :data:`JOIN_EPISODE`). Two models bent differently by their creators'
+        drift fit one rigid ``T`` only on average; the links let the joined model's pose
+        graph (:func:`kgnav.memory.posegraph.straighten`) lay each part where it fits."""
+        c = self.config
+        geo = self.memory.geometry(model_id)
+        stored = self.memory.model(model_id)
+        if geo is None or geo.grad_x is None or stored is None or not self._all:
+            return []
+        g, sg = model.graph.nodes, stored.graph.nodes
+        ids = [s for s in model.states() if g[s].get("ranges") is not None]  # as take_model
+        st_ids = list(stored.states())
+        if len(ids) != len(self._all) or not st_ids:
+            return []
+        st_xy = np.array([(sg[s]["x"], sg[s]["y"]) for s in st_ids], float)
+        T = tuple(float(v) for v in T)
+        w = max(int(c.closure_window), 1)
+        out, spots = [], []
+        for start in range(0, len(self._all), w):
+            stretch = self._all[start:start + w]
+            if len(stretch) < max(w // 2, 1):
+                continue
+            ends, fans = self._episode_geometry(stretch)
+            if len(ends) == 0:
+                continue
+            Ta = self._align(geo, ends, T)
+            cx, cy = ends.mean(axis=0)
+            if (math.dist(se2.apply_to_point(Ta, cx, cy), se2.apply_to_point(T, cx, cy))
+                    > c.max_correction[0]
+                    or se2.angle_diff(Ta[2], T[2]) > math.radians(c.max_correction[1])
+                    or not self._judge(geo, ends, fans, Ta).ok):
+                self.decisions["join link refused"] += 1
+                continue
+            d = g[ids[start + len(stretch) // 2]]
+            at = se2.compose(Ta, (d["x"], d["y"], d["theta"]))
+            near = np.hypot(st_xy[:, 0] - at[0], st_xy[:, 1] - at[1])
+            j = int(near.argmin())
+            if near[j] > c.link_radius:
+                continue
+            to = sg[st_ids[j]]
+            rel = se2.compose(se2.inverse((to["x"], to["y"], to["theta"])), at)
+            out.append({"state": d["origin"].split()[0], "episode": JOIN_EPISODE, "kept": True,
+                        "to": to["origin"].split()[0], "rel": [float(v) for v in rel]})
+            spots.append(at[:2])
+        pts = np.asarray(spots, float).reshape(-1, 2)
+        span = float(np.hypot(*(pts[:, None, :] - pts[None, :, :]).transpose(2, 0, 1)).max()
+                     ) if len(pts) > 1 else 0.0
+        if span < c.join_link_span:
+            self.decisions["join links too close together"] += 1
+            return []
+        self.decisions["join link"] += len(out)
         return out
 
     def corrected_poses(self, episode, T) -> dict[str, tuple[float, float, float]]:

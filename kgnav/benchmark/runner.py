@@ -964,7 +964,9 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
                     joins = consolidate(models, [c for _, c in updated], threshold=threshold,
                                         config=cfg.agent.relocation,
                                         forget_below=cfg.forget_below,
-                                        forget_label_share=cfg.forget_label_share)
+                                        forget_label_share=cfg.forget_label_share,
+                                        drift=(_drift(cfg) if cfg.agent.relocation.joint
+                                               else None))
                     for j in joins:  # on the episode whose update changed one of the two
                         o = next((o for o, c in updated if c in (j.model_id, j.into)),
                                  updated[-1][0])
@@ -1048,6 +1050,8 @@ def _join_fields(cfg: EvalConfig, j: Join) -> dict:
     out = {"model": j.model_id, "into": j.into, "transform": [round(v, 4) for v in j.transform],
            "inliers": round(j.inliers, 3), "conflicts": round(j.conflicts, 3),
            "same_house": same}
+    if j.links:
+        out["links"] = len(j.links)
     if same:
         scene = next((k for k in cfg.scene_indices
                       if scene_name(_env(cfg, k), cfg, k) == _house_of(j.into)), None)

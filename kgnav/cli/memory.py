@@ -65,6 +65,8 @@ def inspect(file: Path, as_json: bool) -> None:
     lc = info["loop_closures"]
     if lc["kept"] or lc["rejected"]:
         linked = f"; {lc['linked']} of the kept linked to stored states" if lc["linked"] else ""
+        if lc.get("joins"):
+            linked += f", {lc['joins']} of them by joins of stored models"
         out.print(f"  {'loop closures':<15}{lc['kept']} kept, {lc['rejected']} rejected "
                   f"(drifting episodes bent onto the model{linked})")
     if info["odometry_states"]:

@@ -20,3 +20,6 @@ SAFE_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,127}\Z")
 #: Largest coordinate (metres, absolute) a model holds: far beyond any building, small enough
 #: that grid cells and distances stay finite.
 MAX_COORD = 1e6
+
+# the "episode" of a loop closure that a join of two stored models made (not an episode's)
+JOIN_EPISODE = -1

@@ -39,6 +39,7 @@ from collections.abc import Collection
 
 import networkx as nx
 
+from kgnav.memory.constants import JOIN_EPISODE
 from kgnav.memory.model import SEES, AbstractModel, ObjectInfo
 from kgnav.memory.store_query import (  # noqa: F401 - the store-wide questions, asked here too
     StoredObject,
@@ -169,7 +170,9 @@ def summary(model: AbstractModel) -> dict:
         "merged_from": model.merged_from,
         "loop_closures": {"kept": sum(c["kept"] for c in closures),
                           "rejected": sum(not c["kept"] for c in closures),
-                          "linked": sum(c["kept"] and "to" in c for c in closures)},
+                          "linked": sum(c["kept"] and "to" in c for c in closures),
+                          "joins": sum(c["kept"] and c["episode"] == JOIN_EPISODE
+                                       for c in closures)},
         "odometry_states": len(model.odometry),
         "extent": (
             {"x": [min(xs), max(xs)], "y": [min(ys), max(ys)]} if xs else None
