@@ -621,7 +621,7 @@ def _relocation_fields(gt: _GroundTruth, reloc) -> dict:
            "checked": reloc.checked, "supported": reloc.supported}
     if reloc.inliers is not None:
         out.update(inliers=reloc.inliers, conflicts=reloc.conflicts, points=reloc.points)
-    return {**out, **_relocation_error(gt, reloc.model_id, reloc.made or reloc.transform,
+    return {**out, **_relocation_error(gt, reloc.model_id, reloc.made,
                                        reloc.at, _at_step(reloc))}
 
 
@@ -744,7 +744,7 @@ class _Tracking:
         (``tracking_error_m``, ``tracking_local_m``)."""
         out = {}
         if not reloc.late:
-            e = self.errors_at(reloc.model_id, reloc.made or reloc.transform, reloc.at,
+            e = self.errors_at(reloc.model_id, reloc.made, reloc.at,
                                reloc.step, path)
             if e is not None and e[1] is not None:
                 out["local_error_m"] = round(e[1], 3)
