@@ -599,21 +599,10 @@ class Relocalizer:
             stretch = self._all[start:start + w]
             if len(stretch) < max(w // 2, 1) and anchors:
                 break  # a short tail: its poses follow the chain
-            ends, fans = self._episode_geometry(stretch)
-            if len(ends) == 0:
-                continue
-            Ta = self._align(geo, ends, Tk)
-            # how far the stretch itself moved (T's translation swings with any turn about
-            # the episode's origin, far from here)
-            cx, cy = ends.mean(axis=0)
-            if (math.dist(se2.apply_to_point(Ta, cx, cy), se2.apply_to_point(Tk, cx, cy))
-                    > c.max_correction[0]
-                    or se2.angle_diff(Ta[2], Tk[2]) > math.radians(c.max_correction[1])):
-                self.decisions["loop closure refused: alignment wandered"] += 1
-                continue
-            v = self._judge(geo, ends, fans, Ta)
-            if not v.ok:
-                self.decisions[f"loop closure refused: {v.reason}"] += 1
+            Ta, ends, why = self._fit_stretch(geo, stretch, Tk)
+            if Ta is None:
+                if why:
+                    self.decisions[f"loop closure refused: {why}"] += 1
                 continue
             if _constraint(geo, ends, Ta, c.inlier_distance) < c.closure_constraint:
                 # the stretch saw walls of mostly one direction: it can slide along them
@@ -631,6 +620,25 @@ class Relocalizer:
         self.decisions["loop closure kept"] += len(fix.kept)
         self.decisions["loop closure rejected"] += len(fix.rejected)
         return fix
+
+    def _fit_stretch(self, geo: StoredGeometry, stretch, T):
+        """``stretch`` (profiles) aligned on its own to ``geo`` starting from ``T``, as
+        ``(Ta, ends, None)`` when it verifies there; ``(None, ends, why)`` when it does not
+        (``why`` None when the stretch has no obstacle to judge)."""
+        ends, fans = self._episode_geometry(stretch)
+        if len(ends) == 0:
+            return None, ends, None
+        Ta = self._align(geo, ends, T)
+        # how far the stretch itself moved (T's translation swings with any turn about the
+        # episode's origin, far from here)
+        c = self.config
+        cx, cy = ends.mean(axis=0)
+        if (math.dist(se2.apply_to_point(Ta, cx, cy), se2.apply_to_point(T, cx, cy))
+                > c.max_correction[0]
+                or se2.angle_diff(Ta[2], T[2]) > math.radians(c.max_correction[1])):
+            return None, ends, "alignment wandered"
+        v = self._judge(geo, ends, fans, Ta)
+        return (Ta, ends, None) if v.ok else (None, ends, v.reason or "not verified")
 
     def close_own_loops(self) -> Correction | None:
         """The episode's pose chain corrected against itself, for an episode stored as a new
@@ -794,16 +802,10 @@ class Relocalizer:
             stretch = self._all[start:start + w]
             if len(stretch) < max(w // 2, 1):
                 continue
-            ends, fans = self._episode_geometry(stretch)
-            if len(ends) == 0:
-                continue
-            Ta = self._align(geo, ends, T)
-            cx, cy = ends.mean(axis=0)
-            if (math.dist(se2.apply_to_point(Ta, cx, cy), se2.apply_to_point(T, cx, cy))
-                    > c.max_correction[0]
-                    or se2.angle_diff(Ta[2], T[2]) > math.radians(c.max_correction[1])
-                    or not self._judge(geo, ends, fans, Ta).ok):
-                self.decisions["join link refused"] += 1
+            Ta, _, why = self._fit_stretch(geo, stretch, T)
+            if Ta is None:
+                if why:
+                    self.decisions["join link refused"] += 1
                 continue
             d = g[ids[start + len(stretch) // 2]]
             at = se2.compose(Ta, (d["x"], d["y"], d["theta"]))

@@ -692,7 +692,7 @@ class _Tracking:
             self._frames[mid] = _model_frame(self.gt, mid)
         return self._frames[mid]
 
-    def _offset(self, mid: str, q: tuple[float, float]) -> tuple[float, float] | None:
+    def offset(self, mid: str, q: tuple[float, float]) -> tuple[float, float] | None:
         """How far the stored model has the true place ``q`` (model frame) moved: the median
         (stored - true) of the stored states with a known truth within LOCAL_RADIUS."""
         if mid not in self._stored:
@@ -724,7 +724,7 @@ class _Tracking:
             return None
         bx, by = se2.apply_to_point(transform, float(at[0]), float(at[1]))
         tx, ty = se2.apply_to_point(se2.inverse(frame), *path[step][:2])
-        off = self._offset(mid, (tx, ty))
+        off = self.offset(mid, (tx, ty))
         local = None if off is None else math.hypot(bx - tx - off[0], by - ty - off[1])
         return math.hypot(bx - tx, by - ty), local
 
@@ -779,7 +779,7 @@ def _placement(gt: _GroundTruth, model_id: str, transform, episode: AbstractMode
         x, y = se2.apply_to_point(transform, d["x"], d["y"])
         tx, ty = se2.apply_to_point(inv, *path[k][:2])
         dist.append(math.hypot(x - tx, y - ty))
-        off = tracking._offset(model_id, (tx, ty)) if tracking is not None else None
+        off = tracking.offset(model_id, (tx, ty)) if tracking is not None else None
         if off is not None:
             local.append(math.hypot(x - tx - off[0], y - ty - off[1]))
         if len(path[k]) > 2:
