@@ -199,3 +199,23 @@ def test_miniworld_ships_and_names_a_segmenter_trained_on_its_frames():
     w = segmenter_weights.load_weights(path)
     assert weights_env(w.meta) == "miniworld" and path.parent.name == "weights"
     check_domain("segmenter", path, w.meta, "miniworld")
+
+
+def test_miniworld_ships_and_names_an_encoder_trained_on_its_frames():
+    """MiniWorld's own encoder passes the domain check there, relocates at the loop threshold
+    calibrated on MiniWorld's calib houses, and is another extractor than kgnav's."""
+    from kgnav.benchmark.runner import with_env_weights
+    from kgnav.envs import env_weights
+    from kgnav.nets.encoder.extractor import NAME, LearnedEncoder
+
+    path = env_weights("miniworld")["encoder"]
+    w = encoder_weights.load_weights(path)
+    assert weights_env(w.meta) == "miniworld" and path.parent.name == "weights"
+    check_domain("encoder", path, w.meta, "miniworld")
+    with pytest.raises(DomainMismatchError):
+        check_domain("encoder", path, w.meta, "kgnav")
+    assert "miniworld, split calib" in w.meta["loop_threshold_source"]
+    enc = LearnedEncoder(path, device="cpu")
+    assert enc.name.startswith(f"{NAME}:") and enc.loop_threshold == w.meta["loop_threshold"]
+    cfg = EvalConfig(env="miniworld", variants=("si",))
+    assert with_env_weights(cfg).encoder_weights == str(path)

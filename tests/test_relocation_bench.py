@@ -161,6 +161,27 @@ def test_relocation_bench_write_threshold(tmp_path, cli):
     assert "seed 5" in load_weights(weights).meta["threshold_source"]
 
 
+def test_relocation_bench_write_loop_threshold(tmp_path, cli):
+    """--write-loop-threshold stores the calibration as the threshold the agent relocates with
+    and leaves the match threshold alone; LearnedEncoder relocates at it."""
+    from kgnav.nets.encoder.extractor import LearnedEncoder
+
+    weights = tmp_path / "w.npz"
+    weights.write_bytes(DEFAULT_WEIGHTS.read_bytes())
+    before = load_weights(weights).threshold
+    code, _, err = cli("relocation-bench", "--out", tmp_path / "o", "--pairs", "11", "--quiet",
+                       "--extractors", "kgnav-encoder", "--weights", weights,
+                       "--target-precision", "0.5", "--write-loop-threshold", "--seed", "5")
+    assert code == 0, err
+    rep = json.loads((tmp_path / "o" / "relocation.json").read_text())
+    cal = rep["extractors"]["kgnav-encoder"]["calibrated_threshold"]
+    w = load_weights(weights)
+    assert w.threshold == before
+    assert w.meta["loop_threshold"] == pytest.approx(cal, abs=1e-6)
+    assert "precision >= 0.5" in w.meta["loop_threshold_source"]
+    assert LearnedEncoder(weights, device="cpu").loop_threshold == pytest.approx(cal, abs=1e-6)
+
+
 @pytest.mark.parametrize("args", [
     ("--pairs", "0"),
     ("--pairs", "many"),
@@ -172,6 +193,7 @@ def test_relocation_bench_write_threshold(tmp_path, cli):
     ("--threshold", "opencv-gist=3"),
     ("--threshold", "kgnav-encoder=0.2", "--extractors", "opencv-gist"),
     ("--write-threshold",),
+    ("--write-loop-threshold",),
     ("--target-precision", "0"),
     ("--device", "tpu"),
 ])

@@ -228,14 +228,18 @@ def _parse_thresholds(ctx, param, values: tuple[str, ...]) -> dict[str, float]:
                    "calibrated on these pairs). Repeatable.")
 @click.option("--target-precision", default=0.99, show_default=True,
               type=click.FloatRange(0, 1, min_open=True), help="Precision the calibration keeps.")
-@click.option("--write-threshold", is_flag=True,
-              help="Store kgnav-encoder's threshold calibrated here into --weights.")
+@click.option("--write-threshold", "write", flag_value="threshold",
+              help="Store kgnav-encoder's threshold calibrated here into --weights as its "
+                   "match threshold.")
+@click.option("--write-loop-threshold", "write", flag_value="loop_threshold",
+              help="Store it into --weights as the threshold the agent relocates with "
+                   "(usually at a looser --target-precision, such as 0.9).")
 @click.option("--device", default="auto", show_default=True, type=DEVICE)
 @env_options
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def relocation_bench(split: str | None, out_dir: Path, extractors: list[str], pairs: int,
                      seed: int, weights: Path | None, thresholds: dict[str, float],
-                     target_precision: float, write_threshold: bool, device: str,
+                     target_precision: float, write: str | None, device: str,
                      env_name: str, scenes: int | None, walk_steps: int, quiet: bool) -> None:
     """Precision/recall of state matching on same-place vs other-place view pairs; ROC.
 
@@ -257,8 +261,9 @@ def relocation_bench(split: str | None, out_dir: Path, extractors: list[str], pa
              else split or "val")
     if out_dir.exists() and not out_dir.is_dir():
         raise click.BadParameter(f"{out_dir} is not a directory", param_hint="--out")
-    if write_threshold and (weights is None or ENCODER not in extractors):
-        raise click.UsageError(f"--write-threshold needs --weights and {ENCODER} in --extractors")
+    if write and (weights is None or ENCODER not in extractors):
+        raise click.UsageError(f"--write-{write.replace('_', '-')} needs --weights and "
+                               f"{ENCODER} in --extractors")
     unknown = [k for k in thresholds if k not in extractors]
     if unknown:
         raise click.BadParameter(f"{unknown[0]!r} is not in --extractors",
@@ -320,13 +325,13 @@ def relocation_bench(split: str | None, out_dir: Path, extractors: list[str], pa
         json.dump(report, fh, indent=1)
     plot_roc(results, out_dir / "relocation_roc.png",
              title=f"relocation on {domain(env_name, split)}: {pairs} places, seed {seed}")
-    if write_threshold:
+    if write:
         from kgnav.nets.encoder.weights import set_threshold
 
         set_threshold(weights, results[ENCODER]["calibrated_threshold"],
                       f"calibrated: largest with precision >= {target_precision} on "
                       f"relocation-bench pairs of {domain(env_name, split)}, {pairs} places, "
-                      f"seed {seed}")
+                      f"seed {seed}", key=write)
     con = Console(highlight=False, soft_wrap=True)
     n_pos = ps.counts()["positive"]
     table = Table("extractor", "dim", "threshold", "precision", "recall", "AUC", "ms/frame",

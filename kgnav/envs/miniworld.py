@@ -72,9 +72,12 @@ def camera_spec(width: int = 160, height: int = 120) -> CameraSpec:
 class MiniWorldHouses:
     """The houses of a split (``options.split``: :data:`SPLITS`)."""
 
-    #: The learned segmenter trained on MiniWorld's frames (``kgnav/weights/``; rebuilt by
-    #: ``kgnav train-segmenter --env miniworld --steps 6000 --out FILE``, docs/segmenter.md).
-    default_weights = {"segmenter": "segmenter-miniworld.npz"}
+    #: The learned segmenter and state encoder trained on MiniWorld's frames
+    #: (``kgnav/weights/``; rebuilt by ``kgnav train-segmenter --env miniworld --steps 6000``,
+    #: docs/segmenter.md, and by ``train-encoder --env miniworld`` with the loop threshold
+    #: from ``relocation-bench --write-loop-threshold``, docs/bring-your-own-simulator.md).
+    default_weights = {"segmenter": "segmenter-miniworld.npz",
+                       "encoder": "encoder-miniworld.npz"}
     #: It applies the motion, pose-sensor and depth noise ``options.noise`` asks for.
     applies_noise = True
 

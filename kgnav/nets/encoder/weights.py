@@ -91,9 +91,15 @@ def shipped_fingerprint() -> str:
     return load_weights().fingerprint()
 
 
-def set_threshold(path: str | os.PathLike[str], threshold: float, source: str) -> None:
-    """Store a calibrated match threshold in the metadata of the weight file at ``path``."""
+def set_threshold(path: str | os.PathLike[str], threshold: float, source: str,
+                  key: str = "threshold") -> None:
+    """Store a calibrated threshold in the metadata of the weight file at ``path``: the match
+    threshold (``key="threshold"``) or the one the agent relocates with
+    (``key="loop_threshold"``, see :class:`~kgnav.nets.encoder.extractor.LearnedEncoder`),
+    with its source under ``<key>_source``."""
+    if key not in ("threshold", "loop_threshold"):
+        raise ValueError(f"key must be threshold or loop_threshold, got {key!r}")
     w = load_weights(path)
-    w.meta["threshold"] = round(float(threshold), 6)
-    w.meta["threshold_source"] = source
+    w.meta[key] = round(float(threshold), 6)
+    w.meta[f"{key}_source"] = source
     w.save(path)
