@@ -334,9 +334,54 @@ def test_a_room_of_the_same_shape_with_other_furniture_is_not_merged():
         assert (rel.mergeable(episode) is not None) is merged
         if not merged:
             assert rel.decisions["merge refused: objects"] == 1
-            off = Relocalizer(memory, RelocationConfig(verify_checks=0, merge_objects=0))
+            off = Relocalizer(memory, RelocationConfig(verify_checks=0, merge_objects=0,
+                                                       absence_views=0))
             run(off, states)
             assert off.mergeable(episode) is not None  # geometry alone would merge it
+
+
+def _furnished(states, dets, model_id):
+    states = [AbstractState(st.features, st.pose, dets, st.ranges) for st in states]
+    episode = AbstractModel(DIM, model_id=model_id, extractor="toy", scan=SCAN)
+    for k, st in enumerate(states):
+        episode.add_state(st.features, st.pose, st.detections, step=k, ranges=st.ranges)
+    return states, episode
+
+
+def test_furniture_where_the_memory_saw_the_floor_empty_is_evidence_of_absence():
+    """Another house's room of room A's shape, its chair and bed standing where the memory's
+    states looked and saw nothing (and the memory's own chair and bed where the episode looked
+    and saw nothing): too few objects land near a stored one for the class check to judge,
+    but the objects absent on both sides refuse the merge. The same room with the
+    memory's furniture in place is merged, and without the check the other would be."""
+    # each place below is in view of at least three of the walk's states
+    chair, bed = Detection("chair", (3.0, 1.0, 0.5)), Detection("bed", (1.5, 1.5, 0.5))
+    memory = Memory({"a-e000": stored_model(objects=(chair, bed))}, threshold=0.05)
+    T_true = (2.0, -1.0, 0.7)
+    inv = se2.inverse(T_true)
+    for where, merged in (([(3.0, 3.0), (4.2, 1.2)], False), ([(3.0, 1.0), (1.5, 1.5)], True)):
+        dets = tuple(Detection(c, (*se2.apply_to_point(inv, *p), 0.5))
+                     for c, p in zip(("chair", "bed"), where, strict=True))
+        states, episode = _furnished(episode_states(ROOM_A, T_true), dets, "b-e000")
+        rel = Relocalizer(memory, RelocationConfig(verify_checks=0))
+        assert run(rel, states) is not None
+        checked, supported = rel.object_support(episode, "a-e000", T_true)
+        absent = rel.object_absence(episode, "a-e000", T_true)
+        if merged:
+            assert (checked, supported, absent) == (2, 2, 0)
+            assert rel.mergeable(episode) is not None
+            continue
+        # too few land near a stored object for the class check; absent: two of the
+        # episode's objects and two of the memory's
+        assert checked < RelocationConfig().merge_objects and supported == 0 and absent == 4
+        assert rel.mergeable(episode) is None
+        assert rel.decisions["merge refused: objects absent"] == 1
+        off = Relocalizer(memory, RelocationConfig(verify_checks=0, absence_views=0))
+        run(off, states)
+        assert off.mergeable(episode) is not None
+        # a place seen from fewer states than absence_views says nothing
+        few = Relocalizer(memory, RelocationConfig(verify_checks=0, absence_views=10_000))
+        assert few.object_absence(episode, "a-e000", T_true) == 0
 
 
 @pytest.mark.parametrize("walls", [ROOM_A, ROOM_B])

@@ -33,7 +33,7 @@ import numpy as np
 
 from kgnav.common import se2
 from kgnav.memory.constants import JOIN_EPISODE
-from kgnav.memory.evidence import MISS_RANGE
+from kgnav.memory.evidence import MISS_RANGE, ScanTable
 from kgnav.memory.geometry import OccupancyGrid, occupancy_from_scans
 from kgnav.memory.posegraph import Anchor, Correction, DriftModel, correct, travelled
 
@@ -75,6 +75,15 @@ class RelocationConfig:
     late_hypotheses: int = 2  # transforms judged per model (the most voted by feature matches)
     merge_objects: int = 3  # before merging, the episode's objects (seen twice) mapped near
     # stored ones must mostly find their class there, once at least this many can be checked
+    # evidence of absence before merging: an object seen twice by one side (the episode or the
+    # stored model) where the other side looked at it from at least this many states (within
+    # MISS_RANGE, in view, unoccluded) and has nothing of its class within landmark_radius
+    # counts against the alignment (0: off) ...
+    absence_views: int = 3
+    # ... and the merge is refused when at least this many objects are absent so and they
+    # outnumber the episode's objects that found their class (a room of the same shape in
+    # another house: its furniture stands elsewhere, where the memory saw the floor empty)
+    absent_objects: int = 2
     # the odometry's drift (kgnav.memory.posegraph.DriftModel): before merging, stretches of the
     # episode verified on their own become loop closures that bend its poses onto the model
     # (None: odometry trusted as exact, one rigid transform, as without noise)
@@ -234,6 +243,7 @@ class Relocalizer:
         self.late: Relocation | None = None  # the match found at the episode's end
         self._landmarks = (np.zeros((0, 2)), np.zeros(0, dtype=object))
         self._last_bridge = 0
+        self._scan_tables: dict[str, ScanTable] = {}  # per stored model, for object_absence
 
     # ------------------------------------------------------------------ proposing
     def observe(self, step: int, state, scan) -> Relocation | None:
@@ -442,11 +452,78 @@ class Relocalizer:
         v = self.verify(model_id, T, scans)
         if v.ok and c.unique and self.ambiguity(model_id, v, scans) is not None:
             v = Verdict(False, "ambiguous", v.transform, v.inliers, v.conflicts, v.points)
-        if v.ok and episode is not None and c.merge_objects > 0 and c.landmark_radius > 0:
-            checked, supported = self.object_support(episode, model_id, v.transform)
-            if checked >= c.merge_objects and supported < c.merge_support * checked:
-                v = Verdict(False, "objects", v.transform, v.inliers, v.conflicts, v.points)
+        return self._object_verdict(model_id, episode, v)
+
+    def _object_verdict(self, model_id: str, episode, v: Verdict) -> Verdict:
+        """``v`` refused as ``objects`` when the episode's objects mapped by ``v.transform``
+        mostly find another class where the stored model has objects, or as ``objects
+        absent`` when objects of either side stand where the other looked and saw none of
+        their class (:meth:`object_absence`)."""
+        c = self.config
+        if not v.ok or episode is None or c.landmark_radius <= 0:
+            return v
+        checked, supported = self.object_support(episode, model_id, v.transform)
+        if c.merge_objects > 0 and checked >= c.merge_objects and (
+                supported < c.merge_support * checked):
+            return Verdict(False, "objects", v.transform, v.inliers, v.conflicts, v.points)
+        if c.absence_views > 0:
+            absent = self.object_absence(episode, model_id, v.transform)
+            if absent >= c.absent_objects and absent > supported:
+                return Verdict(False, "objects absent", v.transform, v.inliers, v.conflicts,
+                               v.points)
         return v
+
+    def object_absence(self, episode, model_id: str, T) -> int:
+        """How many objects seen at least twice, by the ``episode`` or by stored model
+        ``model_id`` (the episode's mapped by ``T``), lie where the other side had them in view
+        from at least ``absence_views`` states within :data:`MISS_RANGE` and knows no object
+        of their class within ``landmark_radius``: evidence that ``T`` is wrong, strongest in
+        look-alike rooms of another house, whose walls fit but whose furniture stands
+        elsewhere. A phantom seen twice counts too, hence the comparison with the support in
+        :meth:`_object_verdict`."""
+        c = self.config
+        stored = self.memory.model(model_id)
+        if stored is None or stored.scan is None or episode.scan is None:
+            return 0
+        if model_id not in self._scan_tables:
+            self._scan_tables[model_id] = ScanTable(stored)
+        theirs = self._scan_tables[model_id]
+        ours = ScanTable(episode)
+        T = tuple(float(v) for v in T)
+        inv = se2.inverse(T)
+
+        def seen_twice(model, to):
+            n = model.graph.nodes
+            return [(n[o]["cls"], *to(n[o]["x"], n[o]["y"])) for o in model.objects()
+                    if n[o].get("n_views", 1) >= 2]
+
+        def of_class(model, to):
+            n = model.graph.nodes
+            return [(n[o]["cls"], *to(n[o]["x"], n[o]["y"])) for o in model.objects()]
+
+        def absent(objs, table, known) -> int:
+            if not len(table):
+                return 0
+            count = 0
+            for cls, x, y in objs:
+                if any(k == cls and math.hypot(kx - x, ky - y) <= c.landmark_radius
+                       for k, kx, ky in known):
+                    continue
+                if len(table.covering(x, y, MISS_RANGE)) >= c.absence_views:
+                    count += 1
+            return count
+
+        def to_model(x, y):
+            return se2.apply_to_point(T, x, y)
+
+        def to_episode(x, y):
+            return se2.apply_to_point(inv, x, y)
+
+        def same(x, y):
+            return (x, y)
+
+        return (absent(seen_twice(episode, to_model), theirs, of_class(stored, same))
+                + absent(seen_twice(stored, to_episode), ours, of_class(episode, same)))
 
     def object_support(self, episode, model_id: str, T) -> tuple[int, int]:
         """How many of the ``episode``'s objects seen at least twice land, mapped by ``T``,
@@ -523,7 +600,7 @@ class Relocalizer:
             v = self.final[r.model_id] = self._episode_verdict(r.model_id, r.transform, scans,
                                                                episode)
             if not v.ok and c.drift is not None and v.reason in ("geometry", "conflict"):
-                v = self._bent_verdict(r.model_id, r.transform, v)
+                v = self._bent_verdict(r.model_id, r.transform, v, episode)
             if v.ok:
                 r.transform = v.transform  # aligned on the whole episode: the most precise
             else:
@@ -562,7 +639,7 @@ class Relocalizer:
             self.correction = self.close_loops(r.model_id, r.transform)
         return r
 
-    def _bent_verdict(self, model_id: str, T, rigid: Verdict) -> Verdict:
+    def _bent_verdict(self, model_id: str, T, rigid: Verdict, episode=None) -> Verdict:
         """A drifting episode that no single transform lays on the model: judge it again with
         its poses bent by its loop closures (:meth:`close_loops`). Kept, the correction is
         :attr:`correction` and the verdict carries ``T`` (the bend already maps the chain)."""
@@ -574,6 +651,9 @@ class Relocalizer:
         v = self.verify(model_id, (0.0, 0.0, 0.0), scans)
         if v.ok and self.config.unique and self.ambiguity(model_id, v, scans) is not None:
             v = Verdict(False, "ambiguous", v.transform, v.inliers, v.conflicts, v.points)
+        if v.ok:  # the objects judged by the rigid T: landmark_radius spans the bend
+            v = replace(v, ok=self._object_verdict(model_id, episode,
+                                                   replace(v, transform=tuple(T))).ok)
         if not v.ok:
             return rigid
         self.decisions["merged after loop closures"] += 1
