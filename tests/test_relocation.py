@@ -384,6 +384,30 @@ def test_furniture_where_the_memory_saw_the_floor_empty_is_evidence_of_absence()
         assert few.object_absence(episode, "a-e000", T_true) == 0
 
 
+@pytest.mark.parametrize("elsewhere", [True, False])
+def test_a_relocation_is_undone_when_its_objects_are_absent(elsewhere):
+    """While navigating, the re-verification every reverify_interval steps also weighs the
+    evidence of absence with the episode's model so far: furniture standing where the
+    memory saw none undoes the relocation (a wrong house's goals are not there); furniture
+    where the memory has it keeps it."""
+    chair, bed = Detection("chair", (3.0, 1.0, 0.5)), Detection("bed", (1.5, 1.5, 0.5))
+    memory = Memory({"a-e000": stored_model(objects=(chair, bed))}, threshold=0.05)
+    T_true = (2.0, -1.0, 0.7)
+    inv = se2.inverse(T_true)
+    where = [(3.0, 3.0), (4.2, 1.2)] if elsewhere else [(3.0, 1.0), (1.5, 1.5)]
+    dets = tuple(Detection(c, (*se2.apply_to_point(inv, *p), 0.5))
+                 for c, p in zip(("chair", "bed"), where, strict=True))
+    states, episode = _furnished(episode_states(ROOM_A, T_true), dets, "b-e000")
+    rel = Relocalizer(memory, RelocationConfig(verify_checks=0))
+    r = run(rel, states)
+    assert r is not None
+    step = r.step + rel.config.reverify_interval
+    quiet = AbstractState(states[-1].features, states[-1].pose, (), states[-1].ranges)
+    assert rel.check(quiet, step) is True  # without the episode's model: nothing to weigh
+    assert rel.check(quiet, step, episode) is not elsewhere
+    assert rel.decisions["undone by absence"] == int(elsewhere)
+
+
 @pytest.mark.parametrize("walls", [ROOM_A, ROOM_B])
 def test_cast_profiles_see_the_walls(walls):
     r = cast(walls, (2.5, 1.0, 0.0))

@@ -341,7 +341,7 @@ class ObjectNavAgent:
         cur = sid
         reloc = self.relocalizer
         if self.relocation_ is not None:
-            if reloc.check(s, self.step_):
+            if reloc.check(s, self.step_, self.model_):
                 reloc.refine(s)
                 cur = self._add_to_current(s)
             else:

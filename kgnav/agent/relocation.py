@@ -466,12 +466,20 @@ class Relocalizer:
         if c.merge_objects > 0 and checked >= c.merge_objects and (
                 supported < c.merge_support * checked):
             return Verdict(False, "objects", v.transform, v.inliers, v.conflicts, v.points)
-        if c.absence_views > 0:
-            absent = self.object_absence(episode, model_id, v.transform)
-            if absent >= c.absent_objects and absent > supported:
-                return Verdict(False, "objects absent", v.transform, v.inliers, v.conflicts,
-                               v.points)
+        if c.absence_views > 0 and self._absent(episode, model_id, v.transform, supported):
+            return Verdict(False, "objects absent", v.transform, v.inliers, v.conflicts,
+                           v.points)
         return v
+
+    def _absent(self, episode, model_id: str, T, supported: int | None = None) -> bool:
+        """At least ``absent_objects`` objects absent (:meth:`object_absence`) under ``T``,
+        and more of them than the episode's objects that find their class there."""
+        absent = self.object_absence(episode, model_id, T)
+        if absent < self.config.absent_objects:
+            return False
+        if supported is None:
+            supported = self.object_support(episode, model_id, T)[1]
+        return absent > supported
 
     def object_absence(self, episode, model_id: str, T) -> int:
         """How many objects seen at least twice, by the ``episode`` or by stored model
@@ -976,11 +984,12 @@ class Relocalizer:
         return float((seen & geo.obstacle[i0:i1, j0:j1]).sum() / n)
 
     # ------------------------------------------------------------------ after the match
-    def check(self, state, step: int = 0) -> bool:
+    def check(self, state, step: int = 0, episode=None) -> bool:
         """Check the standing relocation: every ``reverify_interval`` steps against geometry
-        (with the scans gathered since, which also refines the transform), and every step
-        against landmarks (this state's detections). Returns False (and undoes it) when
-        either refutes it."""
+        (with the scans gathered since, which also refines the transform) and, given the
+        ``episode``'s model so far, against evidence of absence (:meth:`object_absence`, as
+        before a merge); every step against landmarks (this state's detections). Returns
+        False (and undoes it) when any refutes it."""
         r = self.relocation
         c = self.config
         if r is None:
@@ -994,6 +1003,10 @@ class Relocalizer:
             elif v.conflicts > 2 * c.max_conflicts or (v.reason != "few points"
                                                       and v.inliers < c.min_inliers / 2):
                 return self._undo("undone by geometry")  # clearly wrong, not just imprecise
+            if (episode is not None and c.absence_views > 0 and c.landmark_radius > 0
+                    and self._absent(episode, r.model_id, r.transform)):
+                # a wrong house's room leads the agent to goals that are not there
+                return self._undo("undone by absence")
         if c.landmark_radius <= 0:
             return True
         xy, cls = self._landmarks
