@@ -71,3 +71,23 @@ def test_a_directory_that_is_not_a_run_is_one_line(tmp_path, capsys):
     assert exc.value.code == 1
     err = capsys.readouterr().err
     assert "no stored memory for 'si'" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_run_it_cannot_draw_says_so_in_one_line(tmp_path, capsys):
+    """Another environment's run, or a memory of houses the split does not hold, is a one-line
+    error, not a silent success that drew nothing."""
+    (tmp_path / "config.json").write_text(json.dumps({"split": "val", "env": "miniworld"}))
+    with pytest.raises(KgnavError, match="environment 'miniworld'"):
+        draw_run(tmp_path)
+    (tmp_path / "config.json").write_text(json.dumps({"split": "val-small", "episodes": 2}))
+    store = tmp_path / "memory" / "si"
+    store.mkdir(parents=True)
+    m = _model("bed", (1.0, 1.0))
+    m.model_id = "elsewhere-e000"
+    m.save(store / "elsewhere-e000.graphml")
+    with pytest.raises(SystemExit) as exc:
+        main(["memory-map", str(tmp_path)])
+    assert exc.value.code == 1
+    err = capsys.readouterr().err
+    assert "none of its 1 models belongs to a house of split 'val-small'" in err
+    assert len(err.strip().splitlines()) == 1

@@ -89,6 +89,11 @@ def draw_run(run_dir: str | os.PathLike[str], variant: str = "si",
     run = Path(run_dir)
     try:
         cfg = json.loads((run / "config.json").read_text(encoding="utf-8"))
+        env = cfg.get("env", "kgnav")
+        if env != "kgnav":
+            # the drawing needs the house's floor plan, which only kgnav's own scenes give here
+            raise KgnavError(f"{run}: a run on environment {env!r}; memory-map draws the "
+                             "houses of kgnav's own simulator only")
         source = scene_source(cfg["split"], cfg.get("scenes_dir"))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise KgnavError(f"{run}: not a kgnav eval output directory ({exc})") from None
@@ -118,4 +123,7 @@ def draw_run(run_dir: str | os.PathLike[str], variant: str = "si",
         path = out_dir / f"{variant}_{scene.name}.png"
         draw_memory(scene, framed, path, ppm)
         written.append(path)
+    if models and not written:
+        raise KgnavError(f"{store_dir}: none of its {len(models)} models belongs to a house of "
+                         f"split {cfg['split']!r}")
     return written
