@@ -500,14 +500,10 @@ class Relocalizer:
         T = tuple(float(v) for v in T)
         inv = se2.inverse(T)
 
-        def seen_twice(model, to):
+        def objects(model, to=None, views: int = 1):
             n = model.graph.nodes
-            return [(n[o]["cls"], *to(n[o]["x"], n[o]["y"])) for o in model.objects()
-                    if n[o].get("n_views", 1) >= 2]
-
-        def of_class(model, to):
-            n = model.graph.nodes
-            return [(n[o]["cls"], *to(n[o]["x"], n[o]["y"])) for o in model.objects()]
+            return [(n[o]["cls"], *(to or _same)(n[o]["x"], n[o]["y"]))
+                    for o in model.objects() if n[o].get("n_views", 1) >= views]
 
         def absent(objs, table, known) -> int:
             if not len(table):
@@ -527,11 +523,9 @@ class Relocalizer:
         def to_episode(x, y):
             return se2.apply_to_point(inv, x, y)
 
-        def same(x, y):
-            return (x, y)
-
-        return (absent(seen_twice(episode, to_model), theirs, of_class(stored, same))
-                + absent(seen_twice(stored, to_episode), ours, of_class(episode, same)))
+        # a glimpse says little: only objects seen twice are evidence
+        return (absent(objects(episode, to_model, 2), theirs, objects(stored))
+                + absent(objects(stored, to_episode, 2), ours, objects(episode)))
 
     def object_support(self, episode, model_id: str, T) -> tuple[int, int]:
         """How many of the ``episode``'s objects seen at least twice land, mapped by ``T``,
@@ -1078,6 +1072,10 @@ class Relocalizer:
             if v.ok:
                 self.bridges[m.model_id] = v
                 self.decisions["bridge"] += 1
+
+
+def _same(x: float, y: float) -> tuple[float, float]:
+    return x, y
 
 
 def _constraint(geo: StoredGeometry, ends: np.ndarray, T, inlier_distance: float) -> float:
