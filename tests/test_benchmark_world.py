@@ -214,6 +214,25 @@ def test_eval_noise_option(tmp_path, cli):
     assert code == 2 and "actuation=K" in err
 
 
+def test_eval_relocation_option(tmp_path, cli):
+    """--relocation KEY=VALUE changes the preset's RelocationConfig (recorded in config.json);
+    a setting it does not have, or a value of the wrong kind, is a one-line usage error."""
+    code, out, err = cli("eval", "--split", "val-small", "--variants", "oracle", "--scenes", "1",
+                         "--episodes", "1", "--relocation", "bare_inliers=0.5",
+                         "--relocation", "unique=off", "--relocation", "max_correction=2,30",
+                         "--out", tmp_path / "r", "--quiet")
+    assert code == 0, err
+    rel = json.loads((tmp_path / "r" / "config.json").read_text())["agent"]["relocation"]
+    assert rel["bare_inliers"] == 0.5 and rel["unique"] is False
+    assert rel["max_correction"] == [2.0, 30.0] and rel["absence_views"] == 3
+    for arg, needle in (("frobs=1", "unknown relocation setting 'frobs'"),
+                        ("bare_inliers=high", "bare_inliers takes a value like 0.9"),
+                        ("max_correction=1", "max_correction takes a value like (1.0, 20.0)"),
+                        ("top_k", "expected KEY=VALUE")):
+        code, out, err = cli("eval", "--relocation", arg, "--out", tmp_path / "m")
+        assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
+
+
 # --------------------------------------------------------------------------- paired intervals
 def test_paired_bootstrap_is_seeded_and_centred():
     rng = np.random.default_rng(1)

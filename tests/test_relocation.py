@@ -340,6 +340,37 @@ def test_a_room_of_the_same_shape_with_other_furniture_is_not_merged():
             assert off.mergeable(episode) is not None  # geometry alone would merge it
 
 
+def test_walls_alone_must_fit_better_than_walls_with_furniture():
+    """A room 0.4 m narrower than room A (another house's, of nearly its shape) fits the
+    whole episode at about 0.85 inliers: with no object to weigh, that is below
+    ``bare_inliers`` and not merged (look-alike rooms of two houses fit so); the same fit with
+    three objects each finding its class where the memory has it is merged."""
+    narrow = [((0, 0), (5.6, 0)), ((5.6, 0), (5.6, 4)), ((5.6, 4), (0, 4)), ((0, 4), (0, 0)),
+              ((2, 4), (2, 2.5))]
+    furniture = [("chair", (1.0, 3.0)), ("bed", (5.0, 3.0)), ("sofa", (3.0, 1.0))]
+    T_true = (2.0, -1.0, 0.7)
+    inv = se2.inverse(T_true)
+    for furnished in (False, True):
+        stored = tuple(Detection(c, (*p, 0.5)) for c, p in furniture) if furnished else ()
+        memory = Memory({"a-e000": stored_model(objects=stored)}, threshold=0.05)
+        dets = tuple(Detection(c, (*se2.apply_to_point(inv, *p), 0.5))
+                     for c, p in furniture) if furnished else ()
+        states, episode = _furnished([AbstractState(unit(k), se2.compose(inv, w), (),
+                                                    cast(narrow, w))
+                                      for k, w in enumerate(WALK)], dets, "b-e000")
+        rel = Relocalizer(memory, RelocationConfig(verify_checks=0))
+        assert run(rel, states) is not None
+        r = rel.mergeable(episode)
+        fit = rel.final["a-e000"]
+        assert 0.75 < fit.inliers < RelocationConfig().bare_inliers
+        assert (r is not None) is furnished
+        if not furnished:
+            assert rel.decisions["merge refused: walls only"] == 1
+            lax = Relocalizer(memory, RelocationConfig(verify_checks=0, bare_inliers=0.0))
+            run(lax, states)
+            assert lax.mergeable(episode) is not None
+
+
 def _furnished(states, dets, model_id):
     states = [AbstractState(st.features, st.pose, dets, st.ranges) for st in states]
     episode = AbstractModel(DIM, model_id=model_id, extractor="toy", scan=SCAN)

@@ -48,6 +48,43 @@ def _show(ctx, param, value: str | None) -> tuple[int, int] | None:
     return scene, ep
 
 
+def _relocation(ctx, param, values: tuple[str, ...]) -> dict:
+    """``KEY=VALUE`` settings of :class:`~kgnav.agent.relocation.RelocationConfig`, each value
+    parsed as the field's default is typed (a pair as ``A,B``)."""
+    from dataclasses import fields
+
+    from kgnav.agent.relocation import RelocationConfig
+
+    known = {f.name: f.default for f in fields(RelocationConfig)}
+    out: dict = {}
+    for item in values:
+        key, eq, text = item.partition("=")
+        key = key.strip()
+        if not eq or not text.strip():
+            raise click.BadParameter(f"expected KEY=VALUE, got {item!r}", ctx, param)
+        if key not in known or key == "drift":
+            raise click.BadParameter(
+                f"unknown relocation setting {key!r} (known: "
+                f"{', '.join(k for k in known if k != 'drift')})", ctx, param)
+        default = known[key]
+        try:
+            if isinstance(default, bool):
+                if text.strip().lower() not in ("true", "false", "1", "0", "on", "off"):
+                    raise ValueError
+                value = text.strip().lower() in ("true", "1", "on")
+            elif isinstance(default, tuple):
+                value = tuple(float(v) for v in text.split(","))
+                if len(value) != len(default):
+                    raise ValueError
+            else:
+                value = type(default)(text)
+        except ValueError:
+            raise click.BadParameter(f"{key} takes a value like {default!r}, got {text!r}",
+                                     ctx, param) from None
+        out[key] = value
+    return out
+
+
 def _noise(ctx, param, value: str | None) -> str | None:
     """A noise spec (:func:`kgnav.sim.noise.parse_noise`), canonical; None: the default."""
     if value is None:
@@ -142,6 +179,11 @@ def _noise(ctx, param, value: str | None) -> str | None:
               help="Global exploration policy of ans and si: frontier (their default), ppo, "
                    "ppo-semantic, random-goal, ...; sem+si keeps semantic unless "
                    "ppo-semantic.")
+@click.option("--relocation", "relocation", multiple=True, callback=_relocation,
+              metavar="KEY=VALUE",
+              help="Change one setting of the preset's relocation (RelocationConfig, "
+                   "docs/memory.md), e.g. bare_inliers=0 or absence_views=0; repeatable. "
+                   "Recorded in config.json.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--store", "store", type=click.Choice(["directory", "ladybug"]),
               default="directory", show_default=True,
@@ -152,7 +194,7 @@ def _noise(ctx, param, value: str | None) -> str | None:
 def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, workers, engine,
              address, segmenter, segmenter_weights, allow_domain_mismatch, extractor, threshold,
              encoder_weights, pre_explore_steps, show, noise, drift_correction, consolidate, preset,
-             policy, seed, store, quiet) -> None:
+             policy, relocation, seed, store, quiet) -> None:
     """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
     from kgnav.agent.loop import PRESETS
     from kgnav.agent.policy import make_policy, policy_names
@@ -187,6 +229,9 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
         load_segmenter(segmenter_weights)  # one line, exit 1, when the file does not load
     from kgnav.benchmark.runner import EvalConfig, run_eval
 
+    agent = PRESETS[preset]()
+    if relocation:
+        agent = replace(agent, relocation=replace(agent.relocation, **relocation))
     cfg = EvalConfig(split=split, scenes_dir=None if scenes_dir is None else str(scenes_dir),
                      variants=variants, scenes=scenes, episodes=episodes,
                      workers=workers, engine=engine, address=address, segmenter=segmenter,
@@ -195,7 +240,7 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
                      show=show, drift_correction=drift_correction,
                      noise="none" if noise is None and preset == "paper" else noise,
                      consolidate=(preset == "default") if consolidate is None else consolidate,
-                     agent=PRESETS[preset](), forget_below=0.2 if preset == "default" else 0.0,
+                     agent=agent, forget_below=0.2 if preset == "default" else 0.0,
                      forget_label_share=0.5 if preset == "default" else 0.0,
                      preset=preset, policy=policy, env=env_name,
                      encoder_weights=None if encoder_weights is None else str(encoder_weights),
