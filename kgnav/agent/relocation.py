@@ -498,7 +498,6 @@ class Relocalizer:
         look-alike rooms of another house, whose walls fit but whose furniture stands
         elsewhere. A phantom seen twice counts too, hence the comparison with the support in
         :meth:`_object_verdict`."""
-        c = self.config
         stored = self.memory.model(model_id)
         if stored is None or stored.scan is None or episode.scan is None:
             return 0
