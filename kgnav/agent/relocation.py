@@ -24,7 +24,6 @@ accepted, refused or undone.
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections import Counter, deque
 from dataclasses import dataclass, replace
@@ -249,7 +248,7 @@ class Relocalizer:
         self._landmarks = (np.zeros((0, 2)), np.zeros(0, dtype=object))
         self._last_bridge = 0
         self._scan_tables: dict[str, ScanTable] = {}  # per stored model, for object_absence
-        self._episode_table: tuple | None = None  # (episode model, its table, its states)
+        self._episode_table: tuple | None = None  # (episode model, its table)
 
     # ------------------------------------------------------------------ proposing
     def observe(self, step: int, state, scan) -> Relocation | None:
@@ -531,20 +530,14 @@ class Relocalizer:
 
     def _table_of(self, episode) -> ScanTable:
         """The growing ``episode`` model's :class:`ScanTable`, extended by the states it
-        gained since the last call (its states only grow, and never move, while navigating;
-        rebuilding it at every re-verification cost half a millisecond a step)."""
+        gained since the last call (rebuilding it at every re-verification cost half a
+        millisecond a step)."""
         cached = self._episode_table
-        if cached is None or cached[0] is not episode or cached[2] > episode.n_states:
-            table = ScanTable(episode)
+        if cached is None or cached[0] is not episode or cached[1].states_read > episode.n_states:
+            self._episode_table = (episode, ScanTable(episode))
         else:
-            table = cached[1]
-            g = episode.graph
-            for s in itertools.islice(episode.states(), cached[2], None):
-                d = g.nodes[s]
-                if d.get("ranges") is not None:
-                    table.add(s, (d["x"], d["y"], d["theta"]), d["ranges"])
-        self._episode_table = (episode, table, episode.n_states)
-        return table
+            cached[1].extend(episode)
+        return self._episode_table[1]
 
     def object_support(self, episode, model_id: str, T) -> tuple[int, int]:
         """How many of the ``episode``'s objects seen at least twice land, mapped by ``T``,

@@ -36,6 +36,7 @@ about ``p_false``.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -112,19 +113,26 @@ def belief(ev: Evidence, model: BeliefModel = DEFAULT_BELIEF) -> float:
 
 class ScanTable:
     """The poses and range profiles of a model's states, as arrays (build once, query often;
-    :meth:`add` appends the states a growing model gains)."""
+    :meth:`extend` appends the states a growing model gained since, :meth:`add` one state)."""
 
     def __init__(self, model: AbstractModel):
-        g = model.graph
         self.scan = model.scan
         bins = self.scan.bins if self.scan is not None else 0
         self.ids: list[str] = []
         self._poses = np.zeros((16, 3), float)
         self._ranges = np.zeros((16, bins), np.float32)
-        for s in model.states():
+        self.states_read = 0  # the model's states read so far, with a profile or not
+        self.extend(model)
+
+    def extend(self, model: AbstractModel) -> None:
+        """Add the states ``model`` gained since this table last read it (states are only
+        appended while a model grows, and keep their poses)."""
+        g = model.graph
+        for s in itertools.islice(model.states(), self.states_read, None):
             d = g.nodes[s]
             if d.get("ranges") is not None:
                 self.add(s, (d["x"], d["y"], d["theta"]), d["ranges"])
+        self.states_read = model.n_states
 
     def add(self, sid: str, pose, ranges) -> None:
         n = len(self.ids)
