@@ -129,6 +129,67 @@ def test_another_layout_or_another_database_is_refused(tmp_path):
         ModelStore(old).load("h")
 
 
+def _as_layout_1(root) -> None:
+    """Turn a database into what kgnav wrote before layout version 2: no Model -> State/Object
+    relationships."""
+    db = ladybug.Database(str(root))
+    conn = ladybug.Connection(db)
+    for rel in ("HasState", "HasObject"):
+        conn.execute(f"DROP TABLE {rel}")
+    conn.execute("MATCH (m:Meta) WHERE m.key = 'kgnav' SET m.version = 1")
+    conn.close()
+    db.close()
+
+
+def _orphans(store) -> int:
+    """States and objects that no model holds."""
+    return sum(store.cypher(f"MATCH (n:{t}) WHERE NOT EXISTS {{ MATCH (:Model)-[:{r}]->(n) }} "
+                            f"RETURN count(*)")[1][0][0]
+               for t, r in (("State", "HasState"), ("Object", "HasObject")))
+
+
+def test_each_model_holds_its_nodes_through_every_write(tmp_path):
+    store = ModelStore(tmp_path / "memory.lbug")
+    walks = [_walk(i, steps=40, model_id=f"h{i}") for i in range(3)]
+    for w in walks:
+        store.save(w)
+    store.save(_walk(7, steps=25, model_id="h1"))  # replaced: the old nodes go with the model
+    store.update("h2", lambda m: _walk(8, steps=30, model_id="h2"))
+    store.delete("h0")
+    held = dict(store.cypher("MATCH (m:Model)-[:HasState]->(s:State) RETURN m.id, count(s)")[1])
+    assert held == {"h1": _walk(7, steps=25).n_states, "h2": _walk(8, steps=30).n_states}
+    assert store.state_count() == sum(held.values()) and _orphans(store) == 0
+
+
+def test_a_layout_1_database_is_refused_until_upgraded(tmp_path, cli, monkeypatch):
+    root = tmp_path / "old.lbug"
+    walks = {f"h{i}": _walk(i, steps=40, model_id=f"h{i}") for i in range(2)}
+    for w in walks.values():
+        ModelStore(root).save(w)
+    _as_layout_1(root)
+    with pytest.raises(StoreError, match="layout version 1.*kgnav store upgrade"):
+        ModelStore(root).load("h0")
+
+    def boom(conn):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(graphdb, "_bump", boom)  # fails at the transaction's last statement
+    with pytest.raises(RuntimeError, match="disk full"):
+        ModelStore(root).upgrade()
+    monkeypatch.undo()
+    with pytest.raises(StoreError, match="layout version 1"):  # as it was
+        ModelStore(root).ids()
+
+    code, out, err = cli("store", "upgrade", root)
+    assert code == 0, err
+    assert "layout version 1 -> 2" in out
+    store = ModelStore(root)
+    assert {k: store.load(k) for k in store.ids()} == walks and _orphans(store) == 0
+    assert store.upgrade() == graphdb.DB_SCHEMA_VERSION  # already current: nothing to do
+    code, _, err = cli("store", "upgrade", tmp_path / "dir")
+    assert code == 1 and len(err.strip().splitlines()) == 1
+
+
 def test_a_failed_save_keeps_the_previous_version(tmp_path, monkeypatch):
     store = ModelStore(tmp_path / "memory.lbug")
     first = _walk(2, model_id="h")

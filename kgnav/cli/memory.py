@@ -249,6 +249,21 @@ def store_convert(source: Path, dest: Path) -> None:
     out.print(safe(f"{source} -> {dest}: {copied} models"))
 
 
+@store_app.command("upgrade")
+@click.argument("store", metavar="STORE", type=click.Path(path_type=Path))
+def store_upgrade(store: Path) -> None:
+    """Bring a graph-database STORE written by an earlier kgnav to this layout, in one
+    transaction (nothing changes if it fails). A directory of GraphML files needs none."""
+    st = _open_store(store)
+    if backend_of(store) == "directory":
+        raise DataError(f"{store}: a directory of GraphML files has no layout to upgrade")
+    old = st.upgrade()
+    from kgnav.memory.graphdb import DB_SCHEMA_VERSION
+
+    out.print(safe(f"{store}: layout version {old} -> {DB_SCHEMA_VERSION}" if old !=
+                   DB_SCHEMA_VERSION else f"{store}: already layout version {old}"))
+
+
 @store_app.command("index")
 @click.argument("store", metavar="STORE", type=click.Path(path_type=Path))
 @click.option("--backend", type=click.Choice(["exact", "hnsw"]), default="exact",

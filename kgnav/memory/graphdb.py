@@ -3,10 +3,14 @@
 One schema for every model (``docs/graphdb.md`` draws it): node tables ``Model`` (id, extractor,
 feature dimension, the graph's attributes), ``State`` (pose, episode, step, features, range
 profile) and ``Object`` (class, position, extent, evidence), and relationship tables
-``Transition`` (State -> State: action, count) and ``Sees`` (State -> Object: bbox, distance,
-pixels, observed position, score). Every node and edge carries its model's id and its order in
-the model, so a model read back is equal to the one saved (features bit for bit) and iterates in
-the same order. A ``Meta`` node records the layout's version (:data:`DB_SCHEMA_VERSION`).
+``Transition`` (State -> State: action, count), ``Sees`` (State -> Object: bbox, distance,
+pixels, observed position, score), ``HasState`` (Model -> State) and ``HasObject`` (Model ->
+Object). LadybugDB indexes a node table by its primary key only, so a model's own states are
+reached through ``HasState`` from its ``Model`` node: read as ``WHERE s.model = $m``, every
+read of one model would scan the whole ``State`` table, features included (100 times slower at
+a million states). Every node and edge carries its model's id and its order in the model, so a
+model read back is equal to the one saved (features bit for bit) and iterates in the same
+order. A ``Meta`` node records the layout's version (:data:`DB_SCHEMA_VERSION`).
 
 Values go through the same codecs as GraphML (:mod:`kgnav.memory.graphml.schema`): a value the
 GraphML reader would refuse is refused here, and one it reads comes back as it would from a
@@ -53,8 +57,9 @@ from kgnav.memory.store import (
     check_model_id,
 )
 
-#: Version of the database layout below; a database of another version is refused.
-DB_SCHEMA_VERSION = 1
+#: Version of the database layout below; a database of another version is refused
+#: (version 1, without ``HasState``/``HasObject``, is upgraded by :func:`upgrade`).
+DB_SCHEMA_VERSION = 2
 #: What a database of this layout says it is (the ``Meta`` node).
 DB_KIND = "kgnav-memory"
 #: Page cache of a read-only open (LadybugDB's default is most of the machine's memory).
@@ -77,6 +82,8 @@ def _columns(kind: str) -> list[tuple[str, str]]:
 
 
 _NODE_TABLE = {"state": "State", "object": "Object"}
+_HAS = {"State": "HasState", "Object": "HasObject"}  # Model -> its nodes (layout version 2)
+_HAS_DDL = [f"CREATE REL TABLE {rel}(FROM Model TO {table})" for table, rel in _HAS.items()]
 _DDL = [
     "CREATE NODE TABLE Meta(key STRING, kind STRING, version INT64, PRIMARY KEY(key))",
     "CREATE NODE TABLE Model(id STRING, extractor STRING, feature_dim INT64, graph STRING, "
@@ -91,6 +98,7 @@ _DDL = [
     + "".join(f"{c} {t}, " for c, t in _columns("transition")) + "extra STRING)",
     "CREATE REL TABLE Sees(FROM State TO Object, model STRING, ord INT64, "
     + "".join(f"{c} {t}, " for c, t in _columns("sees")) + "extra STRING)",
+    *_HAS_DDL,
 ]
 
 
@@ -141,8 +149,9 @@ class GraphDBStore(ModelStore):
                 self._session = None
 
     @contextlib.contextmanager
-    def _connect(self, *, write: bool):
-        """The database, open for this process alone while the lock is held."""
+    def _connect(self, *, write: bool, layout: bool = True):
+        """The database, open for this process alone while the lock is held (its layout version
+        checked unless ``layout`` is false)."""
         if self._session is not None:
             if write:
                 raise StoreError(f"{self.root}: cannot write inside a reading() block")
@@ -168,7 +177,7 @@ class GraphDBStore(ModelStore):
                 if new:
                     _create(conn)
                 else:
-                    _check_meta(conn, self.root)
+                    _check_meta(conn, self.root, version=DB_SCHEMA_VERSION if layout else None)
                 yield conn
             finally:
                 conn.close()
@@ -240,8 +249,9 @@ class GraphDBStore(ModelStore):
             yield FeatureBatch(mid, extractor, dim, [], np.zeros((0, dim), np.float32))
             return
         for lo in range(0, int(top) + 1, batch):
-            rows = _rows(conn, "MATCH (s:State) WHERE s.model = $m AND s.ord >= $lo AND "
-                               "s.ord < $hi RETURN s.id, s.features ORDER BY s.ord",
+            rows = _rows(conn, "MATCH (m:Model)-[:HasState]->(s:State) WHERE m.id = $m AND "
+                               "s.ord >= $lo AND s.ord < $hi RETURN s.id, s.features "
+                               "ORDER BY s.ord",
                          {"m": mid, "lo": lo, "hi": lo + batch})
             if not rows:
                 continue
@@ -318,6 +328,36 @@ class GraphDBStore(ModelStore):
                                         _bump(conn)))
             return new
 
+    def upgrade(self) -> int:
+        """Bring a database of an earlier layout to this one, in one transaction (an error or a
+        kill leaves it as it was); the version it had. Version 1 lacks the ``Model`` ->
+        ``State``/``Object`` relationships, which are made from the nodes' ``model`` column.
+
+        >>> ModelStore("memory.lbug").upgrade()          # doctest: +SKIP
+        1
+        """
+        if not self.root.exists():
+            raise StoreError(f"{self.root}: no such database")
+        with self._connect(write=True, layout=False) as conn:
+            old = int(_rows(conn, "MATCH (m:Meta) WHERE m.key = 'kgnav' RETURN m.version")[0][0])
+            if old == DB_SCHEMA_VERSION:
+                return old
+            if old != 1:
+                raise StoreError(f"{self.root}: kgnav memory layout version {old}, this kgnav "
+                                 f"upgrades version 1 to {DB_SCHEMA_VERSION}")
+
+            def body():
+                for ddl, (table, rel) in zip(_HAS_DDL, _HAS.items(), strict=True):
+                    conn.execute(ddl)
+                    conn.execute(f"MATCH (m:Model), (n:{table}) WHERE n.model = m.id "
+                                 f"CREATE (m)-[:{rel}]->(n)")
+                conn.execute("MATCH (m:Meta) WHERE m.key = 'kgnav' SET m.version = $v",
+                             {"v": DB_SCHEMA_VERSION})
+                _bump(conn)
+
+            _transaction(conn, body)
+            return old
+
     def delete(self, model_id: str) -> None:
         """Remove a model; :class:`StoreError` if it is not there."""
         check_model_id(model_id)
@@ -382,16 +422,17 @@ def _create(conn) -> None:
                  {"k": DB_KIND, "v": DB_SCHEMA_VERSION})
 
 
-def _check_meta(conn, path: Path) -> None:
+def _check_meta(conn, path: Path, *, version: int | None = DB_SCHEMA_VERSION) -> None:
     try:
         meta = _rows(conn, "MATCH (m:Meta) WHERE m.key = 'kgnav' RETURN m.kind, m.version")
     except RuntimeError:
         raise StoreError(f"{path}: a LadybugDB database, but not a kgnav memory") from None
     if not meta or meta[0][0] != DB_KIND:
         raise StoreError(f"{path}: a LadybugDB database, but not a kgnav memory")
-    if meta[0][1] != DB_SCHEMA_VERSION:
+    if version is not None and meta[0][1] != version:
+        hint = (f"; `kgnav store upgrade {path}` upgrades it" if meta[0][1] < version else "")
         raise StoreError(f"{path}: kgnav memory layout version {meta[0][1]}, this kgnav reads "
-                         f"version {DB_SCHEMA_VERSION}")
+                         f"version {version}{hint}")
 
 
 def _transaction(conn, body: Callable[[], object]) -> None:
@@ -418,9 +459,10 @@ def _has_model(conn, model_id: str) -> bool:
 
 
 def _delete(conn, model_id: str) -> None:
-    for table in ("State", "Object"):
-        conn.execute(f"MATCH (n:{table}) WHERE n.model = $m DETACH DELETE n", {"m": model_id})
-    conn.execute("MATCH (m:Model) WHERE m.id = $m DELETE m", {"m": model_id})
+    for table, rel in _HAS.items():
+        conn.execute(f"MATCH (m:Model)-[:{rel}]->(n:{table}) WHERE m.id = $m DETACH DELETE n",
+                     {"m": model_id})
+    conn.execute("MATCH (m:Model) WHERE m.id = $m DETACH DELETE m", {"m": model_id})
 
 
 # ---------------------------------------------------------------------------- model -> rows
@@ -489,8 +531,9 @@ def _insert(conn, rows: dict) -> None:
         cols = ["key", "model", "id", "ord", *_ROWS[kind], "extra"]
         if rows["nodes"][kind]:
             sets = ", ".join(f"{c}: r.{c}" for c in cols)
-            conn.execute(f"UNWIND $rows AS r CREATE (:{table} {{{sets}}})",
-                         {"rows": rows["nodes"][kind]})
+            conn.execute(f"MATCH (m:Model) WHERE m.id = $id UNWIND $rows AS r "
+                         f"CREATE (m)-[:{_HAS[table]}]->(:{table} {{{sets}}})",
+                         {"id": rows["model"]["id"], "rows": rows["nodes"][kind]})
     for kind, table, src, dst in (("transition", "Transition", "State", "State"),
                                   ("sees", "Sees", "State", "Object")):
         cols = ["model", "ord", *(["action"] if kind == "transition" else []), *_ROWS[kind],
@@ -558,18 +601,19 @@ def _read_model(conn, model_id: str, path: Path) -> AbstractModel:
     for kind, table in _NODE_TABLE.items():
         cols = [*_ROWS[kind], "extra"]
         ret = ", ".join(f"n.{c}" for c in ("id", "ord", *cols))
-        for r in _rows(conn, f"MATCH (n:{table}) WHERE n.model = $m RETURN {ret}",
-                       {"m": model_id}):
+        for r in _rows(conn, f"MATCH (m:Model)-[:{_HAS[table]}]->(n:{table}) "
+                             f"WHERE m.id = $m RETURN {ret}", {"m": model_id}):
             nodes.append((r[1], r[0], {"kind": kind, **_attrs(cols, r[2:], kind, ctx, where)}))
     for _, n, attrs in sorted(nodes, key=lambda t: t[0]):
         g.add_node(n, **attrs)
     edges = []
-    for kind, table in (("transition", "Transition"), ("sees", "Sees")):
+    for kind, table, dst in (("transition", "Transition", "State"), ("sees", "Sees", "Object")):
         cols = [*_ROWS[kind], "extra"]
         extra_ret = ", e.action" if kind == "transition" else ""
         ret = ", ".join(f"e.{c}" for c in cols)
-        for r in _rows(conn, f"MATCH (a)-[e:{table}]->(b) WHERE e.model = $m "
-                             f"RETURN a.id, b.id, e.ord{extra_ret}, {ret}", {"m": model_id}):
+        for r in _rows(conn, f"MATCH (m:Model)-[:HasState]->(a:State)-[e:{table}]->(b:{dst}) "
+                             f"WHERE m.id = $m RETURN a.id, b.id, e.ord{extra_ret}, {ret}",
+                       {"m": model_id}):
             key, cells = (r[3], r[4:]) if kind == "transition" else (SEES, r[3:])
             edges.append((r[2], r[0], r[1], key,
                           {"kind": kind, **_attrs(cols, cells, kind, ctx, where)}))
