@@ -125,8 +125,11 @@ def test_another_layout_or_another_database_is_refused(tmp_path):
     conn.execute("MATCH (m:Meta) SET m.version = 99")
     conn.close()
     db.close()
-    with pytest.raises(StoreError, match="layout version 99"):
+    with pytest.raises(StoreError, match="layout version 99") as exc:
         ModelStore(old).load("h")
+    assert "upgrade" not in str(exc.value)  # only version 1 has a way up
+    with pytest.raises(StoreError, match="layout version 99, this kgnav upgrades version 1"):
+        ModelStore(old).upgrade()
 
 
 def _as_layout_1(root) -> None:
@@ -166,14 +169,15 @@ def test_a_layout_1_database_is_refused_until_upgraded(tmp_path, cli, monkeypatc
     walks = {f"h{i}": _walk(i, steps=40, model_id=f"h{i}") for i in range(2)}
     for w in walks.values():
         ModelStore(root).save(w)
+    revision = ModelStore(root).revision()
     _as_layout_1(root)
     with pytest.raises(StoreError, match="layout version 1.*kgnav store upgrade"):
         ModelStore(root).load("h0")
 
-    def boom(conn):
+    def boom(conn, version):
         raise RuntimeError("disk full")
 
-    monkeypatch.setattr(graphdb, "_bump", boom)  # fails at the transaction's last statement
+    monkeypatch.setattr(graphdb, "_set_version", boom)  # the transaction's last statement
     with pytest.raises(RuntimeError, match="disk full"):
         ModelStore(root).upgrade()
     monkeypatch.undo()
@@ -185,9 +189,11 @@ def test_a_layout_1_database_is_refused_until_upgraded(tmp_path, cli, monkeypatc
     assert "layout version 1 -> 2" in out
     store = ModelStore(root)
     assert {k: store.load(k) for k in store.ids()} == walks and _orphans(store) == 0
+    assert store.revision() == revision  # no model changed: a saved relocator index stays valid
     assert store.upgrade() == graphdb.DB_SCHEMA_VERSION  # already current: nothing to do
+    (tmp_path / "dir").mkdir()
     code, _, err = cli("store", "upgrade", tmp_path / "dir")
-    assert code == 1 and len(err.strip().splitlines()) == 1
+    assert code == 1 and len(err.strip().splitlines()) == 1 and "no layout to upgrade" in err
 
 
 def test_a_failed_save_keeps_the_previous_version(tmp_path, monkeypatch):

@@ -227,7 +227,8 @@ class GraphDBStore(ModelStore):
         with self._connect(write=False) as conn:
             if conn is None:
                 return
-            tops = dict(_rows(conn, "MATCH (s:State) RETURN s.model, max(s.ord)"))
+            tops = dict(_rows(conn, "MATCH (m:Model)-[:HasState]->(s:State) "
+                                    "RETURN m.id, max(s.ord)"))
             for mid, extractor, dim in _rows(
                     conn, "MATCH (m:Model) RETURN m.id, m.extractor, m.feature_dim ORDER BY m.id"):
                 dim, sent = int(dim), False
@@ -332,6 +333,8 @@ class GraphDBStore(ModelStore):
         """Bring a database of an earlier layout to this one, in one transaction (an error or a
         kill leaves it as it was); the version it had. Version 1 lacks the ``Model`` ->
         ``State``/``Object`` relationships, which are made from the nodes' ``model`` column.
+        No model changes, so the store's revision stays and a relocator index saved beside it
+        stays valid.
 
         >>> ModelStore("memory.lbug").upgrade()          # doctest: +SKIP
         1
@@ -339,7 +342,7 @@ class GraphDBStore(ModelStore):
         if not self.root.exists():
             raise StoreError(f"{self.root}: no such database")
         with self._connect(write=True, layout=False) as conn:
-            old = int(_rows(conn, "MATCH (m:Meta) WHERE m.key = 'kgnav' RETURN m.version")[0][0])
+            old = _rows(conn, "MATCH (m:Meta) WHERE m.key = 'kgnav' RETURN m.version")[0][0]
             if old == DB_SCHEMA_VERSION:
                 return old
             if old != 1:
@@ -351,9 +354,7 @@ class GraphDBStore(ModelStore):
                     conn.execute(ddl)
                     conn.execute(f"MATCH (m:Model), (n:{table}) WHERE n.model = m.id "
                                  f"CREATE (m)-[:{rel}]->(n)")
-                conn.execute("MATCH (m:Meta) WHERE m.key = 'kgnav' SET m.version = $v",
-                             {"v": DB_SCHEMA_VERSION})
-                _bump(conn)
+                _set_version(conn, DB_SCHEMA_VERSION)
 
             _transaction(conn, body)
             return old
@@ -422,6 +423,10 @@ def _create(conn) -> None:
                  {"k": DB_KIND, "v": DB_SCHEMA_VERSION})
 
 
+def _set_version(conn, version: int) -> None:
+    conn.execute("MATCH (m:Meta) WHERE m.key = 'kgnav' SET m.version = $v", {"v": version})
+
+
 def _check_meta(conn, path: Path, *, version: int | None = DB_SCHEMA_VERSION) -> None:
     try:
         meta = _rows(conn, "MATCH (m:Meta) WHERE m.key = 'kgnav' RETURN m.kind, m.version")
@@ -430,7 +435,7 @@ def _check_meta(conn, path: Path, *, version: int | None = DB_SCHEMA_VERSION) ->
     if not meta or meta[0][0] != DB_KIND:
         raise StoreError(f"{path}: a LadybugDB database, but not a kgnav memory")
     if version is not None and meta[0][1] != version:
-        hint = (f"; `kgnav store upgrade {path}` upgrades it" if meta[0][1] < version else "")
+        hint = f"; `kgnav store upgrade {path}` upgrades it" if meta[0][1] == 1 else ""
         raise StoreError(f"{path}: kgnav memory layout version {meta[0][1]}, this kgnav reads "
                          f"version {version}{hint}")
 
