@@ -228,6 +228,7 @@ def test_eval_relocation_option(tmp_path, cli):
     for arg, needle in (("frobs=1", "unknown relocation setting 'frobs'"),
                         ("bare_inliers=high", "bare_inliers takes a value like 0.9"),
                         ("max_correction=1", "max_correction takes a value like (1.0, 20.0)"),
+                        ("unique=maybe", "unique takes a value like True"),
                         ("top_k", "expected KEY=VALUE")):
         code, out, err = cli("eval", "--relocation", arg, "--out", tmp_path / "m")
         assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err

@@ -69,16 +69,14 @@ def _relocation(ctx, param, values: tuple[str, ...]) -> dict:
         default = known[key]
         try:
             if isinstance(default, bool):
-                if text.strip().lower() not in ("true", "false", "1", "0", "on", "off"):
-                    raise ValueError
-                value = text.strip().lower() in ("true", "1", "on")
+                value = click.BOOL.convert(text.strip(), param, ctx)
             elif isinstance(default, tuple):
                 value = tuple(float(v) for v in text.split(","))
                 if len(value) != len(default):
                     raise ValueError
             else:
                 value = type(default)(text)
-        except ValueError:
+        except (ValueError, click.BadParameter):
             raise click.BadParameter(f"{key} takes a value like {default!r}, got {text!r}",
                                      ctx, param) from None
         out[key] = value
