@@ -249,11 +249,21 @@ class GraphDBStore(ModelStore):
         if top is None:  # a model without states
             yield FeatureBatch(mid, extractor, dim, [], np.zeros((0, dim), np.float32))
             return
-        for lo in range(0, int(top) + 1, batch):
-            rows = _rows(conn, "MATCH (m:Model)-[:HasState]->(s:State) WHERE m.id = $m AND "
-                               "s.ord >= $lo AND s.ord < $hi RETURN s.id, s.features "
-                               "ORDER BY s.ord",
-                         {"m": mid, "lo": lo, "hi": lo + batch})
+        # A filter on the states (`s.ord` in a range) makes LadybugDB plan a hash join built from
+        # a scan of the whole State table, features included, which fills a reader's page cache
+        # at a million states; so a model that fits one batch is read whole through HasState,
+        # and a larger one as its keys in order, then a batch of primary-key lookups at a time.
+        q = "MATCH (m:Model)-[:HasState]->(s:State) WHERE m.id = $m "
+        if int(top) < batch:
+            pages = [_rows(conn, q + "RETURN s.id, s.features ORDER BY s.ord", {"m": mid})]
+        else:
+            keys = [k for k, in _rows(conn, q + "RETURN s.key ORDER BY s.ord", {"m": mid})]
+            pages = (sorted(_rows(conn, "UNWIND $keys AS k MATCH (s:State) WHERE s.key = k "
+                                        "RETURN s.ord, s.id, s.features",
+                                  {"keys": keys[lo:lo + batch]}))
+                     for lo in range(0, len(keys), batch))
+            pages = ([r[1:] for r in page] for page in pages)
+        for rows in pages:
             if not rows:
                 continue
             blobs = [r[1] for r in rows]
