@@ -96,9 +96,10 @@ def models_with_classes_near(store, a: str, b: str, within: float) -> list[str]:
     w2 = float(within) * float(within)
     if (db := _db(store)) is not None:
         _, rows = db.cypher(
-            "MATCH (p:Object), (q:Object) WHERE p.model = q.model AND p.cls = $a AND q.cls = $b "
-            "AND p.key <> q.key AND (p.x - q.x) * (p.x - q.x) + (p.y - q.y) * (p.y - q.y) <= $w2 "
-            "RETURN DISTINCT p.model", {"a": a, "b": b, "w2": w2})
+            "MATCH (m:Model)-[:HasObject]->(p:Object), (m)-[:HasObject]->(q:Object) "
+            "WHERE p.cls = $a AND q.cls = $b AND p.key <> q.key "
+            "AND (p.x - q.x) * (p.x - q.x) + (p.y - q.y) * (p.y - q.y) <= $w2 "
+            "RETURN DISTINCT m.id", {"a": a, "b": b, "w2": w2})
         return sorted(r[0] for r in rows)
     out = []
     for m in _models(store):
