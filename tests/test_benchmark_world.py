@@ -220,11 +220,15 @@ def test_eval_relocation_option(tmp_path, cli):
     code, out, err = cli("eval", "--split", "val-small", "--variants", "oracle", "--scenes", "1",
                          "--episodes", "1", "--relocation", "bare_inliers=0.5",
                          "--relocation", "unique=off", "--relocation", "max_correction=2,30",
-                         "--out", tmp_path / "r", "--quiet")
+                         "--goals", "min_score=0.7", "--out", tmp_path / "r", "--quiet")
     assert code == 0, err
     rel = json.loads((tmp_path / "r" / "config.json").read_text())["agent"]["relocation"]
     assert rel["bare_inliers"] == 0.5 and rel["unique"] is False
     assert rel["max_correction"] == [2.0, 30.0] and rel["absence_views"] == 3
+    assert json.loads((tmp_path / "r" / "config.json").read_text())["agent"]["goals"][
+        "min_score"] == 0.7
+    code, out, err = cli("eval", "--goals", "min_scor=1", "--out", tmp_path / "m")
+    assert code == 2 and "unknown goal setting 'min_scor'" in err
     for arg, needle in (("frobs=1", "unknown relocation setting 'frobs'"),
                         ("bare_inliers=high", "bare_inliers takes a value like 0.9"),
                         ("max_correction=1", "max_correction takes a value like (1.0, 20.0)"),

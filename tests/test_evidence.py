@@ -352,3 +352,22 @@ def test_a_place_labelled_often_but_with_less_confidence_than_its_class_is_not_a
     both = merge(m, model(5), transform=(0.0, 0.0, 0.0))
     ev = object_evidence(both)
     assert sorted(round(e.mean_score, 6) for e in ev.values()) == [0.6, 0.9]
+
+
+def test_a_floor_on_confidence_refuses_even_a_class_s_only_candidate():
+    """With ``min_score`` a lone chair seen 5 times at 0.6 is no goal (a persistent phantom
+    that is its class's only candidate), one at 0.9 is; seen twice, it is not judged yet."""
+    from kgnav.agent.goals import GoalConfig, choose_goal
+
+    def lone(score, n=5):
+        m = AbstractModel(2, model_id="c")
+        for k in range(n):
+            m.add_state([1.0, 0.05 * k], (0, 0.05 * k, 0),
+                        [Detection("chair", (-2.0, 0.0, 0.4), score=score)])
+        return m
+
+    floor = GoalConfig(min_score=0.72)
+    assert choose_goal(lone(0.6), "chair", (0.0, 0.0), GoalConfig()) is not None
+    assert choose_goal(lone(0.6), "chair", (0.0, 0.0), floor) is None
+    assert choose_goal(lone(0.9), "chair", (0.0, 0.0), floor) is not None
+    assert choose_goal(lone(0.6, n=2), "chair", (0.0, 0.0), floor) is not None

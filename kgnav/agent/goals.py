@@ -12,7 +12,9 @@
   among the candidates seen from at least ``score_views`` states, one whose views' mean
   detection confidence falls more than ``score_margin`` below the best candidate's is left
   out. The comparison is within the goal class, because a segmenter is surer of some
-  classes than of others (of beds than of plants); a class's only candidate always stays.
+  classes than of others (of beds than of plants); a class's only candidate stays, unless
+  ``min_score`` (off by default) is set: then a candidate seen from ``score_views`` states
+  whose mean confidence is below it is left out even when it is the only one.
 
 Either rule skips objects seen from fewer than ``min_views`` states and the ids excluded by
 the caller (objects already looked for and not found).
@@ -51,6 +53,8 @@ class GoalConfig:
     score_margin: float = 0.1  # belief rule: leave out a candidate whose mean detection
     # confidence is this far below the best candidate's (math.inf: off)
     score_views: int = 3  # ... among those seen from this many states
+    min_score: float = 0.0  # belief rule: leave out a candidate seen from score_views states
+    # whose views' mean detection confidence is below this, even its class's only one (0: off)
 
     def __post_init__(self):
         if self.rule not in GOAL_RULES:
@@ -78,7 +82,9 @@ def choose_goal(model: AbstractModel, cls: str, near, config: GoalConfig,
         return None
     ev = object_evidence(model, [o.id for o in cands], table=table, cache=cache,
                          stale=config.evidence_refresh, weak_below=config.belief.weak_below)
-    trusted = [o for o in cands if trusts(ev[o.id], config)]
+    trusted = [o for o in cands if trusts(ev[o.id], config)
+               and (ev[o.id].n_views < config.score_views
+                    or ev[o.id].mean_score >= config.min_score)]
     judged = [ev[o.id].mean_score for o in trusted if ev[o.id].n_views >= config.score_views]
     if judged and math.isfinite(config.score_margin):
         floor = max(judged) - config.score_margin

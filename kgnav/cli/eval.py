@@ -48,39 +48,55 @@ def _show(ctx, param, value: str | None) -> tuple[int, int] | None:
     return scene, ep
 
 
-def _relocation(ctx, param, values: tuple[str, ...]) -> dict:
-    """``KEY=VALUE`` settings of :class:`~kgnav.agent.relocation.RelocationConfig`, each value
-    parsed as the field's default is typed (a pair as ``A,B``)."""
+def _settings(config_cls, what: str):
+    """A click callback parsing ``KEY=VALUE`` settings of the dataclass ``config_cls`` (its
+    plain fields: numbers, switches, names, pairs), each value parsed as the field's default is
+    typed (a pair as ``A,B``); ``what`` names them in errors."""
     from dataclasses import fields
 
+    def parse(ctx, param, values: tuple[str, ...]) -> dict:
+        known = {f.name: f.default for f in fields(config_cls)
+                 if isinstance(f.default, (bool, int, float, str, tuple))}
+        out: dict = {}
+        for item in values:
+            key, eq, text = item.partition("=")
+            key = key.strip()
+            if not eq or not text.strip():
+                raise click.BadParameter(f"expected KEY=VALUE, got {item!r}", ctx, param)
+            if key not in known:
+                raise click.BadParameter(
+                    f"unknown {what} setting {key!r} (known: {', '.join(known)})", ctx, param)
+            default = known[key]
+            try:
+                if isinstance(default, bool):
+                    value = click.BOOL.convert(text.strip(), param, ctx)
+                elif isinstance(default, tuple):
+                    value = tuple(float(v) for v in text.split(","))
+                    if len(value) != len(default):
+                        raise ValueError
+                else:
+                    value = type(default)(text)
+            except (ValueError, click.BadParameter):
+                raise click.BadParameter(f"{key} takes a value like {default!r}, got {text!r}",
+                                         ctx, param) from None
+            out[key] = value
+        return out
+
+    return parse
+
+
+def _relocation(ctx, param, values: tuple[str, ...]) -> dict:
+    """``KEY=VALUE`` settings of :class:`~kgnav.agent.relocation.RelocationConfig`."""
     from kgnav.agent.relocation import RelocationConfig
 
-    known = {f.name: f.default for f in fields(RelocationConfig)}
-    out: dict = {}
-    for item in values:
-        key, eq, text = item.partition("=")
-        key = key.strip()
-        if not eq or not text.strip():
-            raise click.BadParameter(f"expected KEY=VALUE, got {item!r}", ctx, param)
-        if key not in known or key == "drift":
-            raise click.BadParameter(
-                f"unknown relocation setting {key!r} (known: "
-                f"{', '.join(k for k in known if k != 'drift')})", ctx, param)
-        default = known[key]
-        try:
-            if isinstance(default, bool):
-                value = click.BOOL.convert(text.strip(), param, ctx)
-            elif isinstance(default, tuple):
-                value = tuple(float(v) for v in text.split(","))
-                if len(value) != len(default):
-                    raise ValueError
-            else:
-                value = type(default)(text)
-        except (ValueError, click.BadParameter):
-            raise click.BadParameter(f"{key} takes a value like {default!r}, got {text!r}",
-                                     ctx, param) from None
-        out[key] = value
-    return out
+    return _settings(RelocationConfig, "relocation")(ctx, param, values)
+
+
+def _goals(ctx, param, values: tuple[str, ...]) -> dict:
+    """``KEY=VALUE`` settings of :class:`~kgnav.agent.goals.GoalConfig`."""
+    from kgnav.agent.goals import GoalConfig
+
+    return _settings(GoalConfig, "goal")(ctx, param, values)
 
 
 def _noise(ctx, param, value: str | None) -> str | None:
@@ -182,6 +198,10 @@ def _noise(ctx, param, value: str | None) -> str | None:
               help="Change one setting of the preset's relocation (RelocationConfig, "
                    "docs/memory.md), e.g. bare_inliers=0 or absence_views=0; repeatable. "
                    "Recorded in config.json.")
+@click.option("--goals", "goals", multiple=True, callback=_goals, metavar="KEY=VALUE",
+              help="Change one setting of the preset's choice of a remembered goal "
+                   "(GoalConfig, docs/agent.md), e.g. min_score=0.72; repeatable. Recorded "
+                   "in config.json.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--store", "store", type=click.Choice(["directory", "ladybug"]),
               default="directory", show_default=True,
@@ -192,7 +212,7 @@ def _noise(ctx, param, value: str | None) -> str | None:
 def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, workers, engine,
              address, segmenter, segmenter_weights, allow_domain_mismatch, extractor, threshold,
              encoder_weights, pre_explore_steps, show, noise, drift_correction, consolidate, preset,
-             policy, relocation, seed, store, quiet) -> None:
+             policy, relocation, goals, seed, store, quiet) -> None:
     """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
     from kgnav.agent.loop import PRESETS
     from kgnav.agent.policy import make_policy, policy_names
@@ -230,6 +250,8 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
     agent = PRESETS[preset]()
     if relocation:
         agent = replace(agent, relocation=replace(agent.relocation, **relocation))
+    if goals:
+        agent = replace(agent, goals=replace(agent.goals, **goals))
     cfg = EvalConfig(split=split, scenes_dir=None if scenes_dir is None else str(scenes_dir),
                      variants=variants, scenes=scenes, episodes=episodes,
                      workers=workers, engine=engine, address=address, segmenter=segmenter,
