@@ -60,6 +60,8 @@ from kgnav.memory.store import (
 #: Version of the database layout below; a database of another version is refused
 #: (version 1, without ``HasState``/``HasObject``, is upgraded by :func:`upgrade`).
 DB_SCHEMA_VERSION = 2
+#: The earlier layout version :meth:`GraphDBStore.upgrade` brings to this one.
+UPGRADES_FROM = 1
 #: What a database of this layout says it is (the ``Meta`` node).
 DB_KIND = "kgnav-memory"
 #: Page cache of a read-only open (LadybugDB's default is most of the machine's memory).
@@ -255,15 +257,15 @@ class GraphDBStore(ModelStore):
         # and a larger one as its keys in order, then a batch of primary-key lookups at a time.
         q = "MATCH (m:Model)-[:HasState]->(s:State) WHERE m.id = $m "
         if int(top) < batch:
-            pages = [_rows(conn, q + "RETURN s.id, s.features ORDER BY s.ord", {"m": mid})]
+            pages = [_rows(conn, q + "RETURN s.ord, s.id, s.features ORDER BY s.ord", {"m": mid})]
         else:
             keys = [k for k, in _rows(conn, q + "RETURN s.key ORDER BY s.ord", {"m": mid})]
             pages = (sorted(_rows(conn, "UNWIND $keys AS k MATCH (s:State) WHERE s.key = k "
                                         "RETURN s.ord, s.id, s.features",
                                   {"keys": keys[lo:lo + batch]}))
                      for lo in range(0, len(keys), batch))
-            pages = ([r[1:] for r in page] for page in pages)
-        for rows in pages:
+        for page in pages:  # rows (ord, id, features) in the model's order
+            rows = [r[1:] for r in page]
             if not rows:
                 continue
             blobs = [r[1] for r in rows]
@@ -355,9 +357,9 @@ class GraphDBStore(ModelStore):
             old = _rows(conn, "MATCH (m:Meta) WHERE m.key = 'kgnav' RETURN m.version")[0][0]
             if old == DB_SCHEMA_VERSION:
                 return old
-            if old != 1:
+            if old != UPGRADES_FROM:
                 raise StoreError(f"{self.root}: kgnav memory layout version {old}, this kgnav "
-                                 f"upgrades version 1 to {DB_SCHEMA_VERSION}")
+                                 f"upgrades version {UPGRADES_FROM} to {DB_SCHEMA_VERSION}")
 
             def body():
                 for ddl, (table, rel) in zip(_HAS_DDL, _HAS.items(), strict=True):
@@ -445,7 +447,8 @@ def _check_meta(conn, path: Path, *, version: int | None = DB_SCHEMA_VERSION) ->
     if not meta or meta[0][0] != DB_KIND:
         raise StoreError(f"{path}: a LadybugDB database, but not a kgnav memory")
     if version is not None and meta[0][1] != version:
-        hint = f"; `kgnav store upgrade {path}` upgrades it" if meta[0][1] == 1 else ""
+        hint = (f"; `kgnav store upgrade {path}` upgrades it" if meta[0][1] == UPGRADES_FROM
+                else "")
         raise StoreError(f"{path}: kgnav memory layout version {meta[0][1]}, this kgnav reads "
                          f"version {version}{hint}")
 
