@@ -331,3 +331,59 @@ def test_the_report_prints_the_split_the_reasons_and_the_curve(capsys):
     assert [c.strip() for c in si.strip("│").split("│")] == ["si", "1", "0", "0", "0", "0",
                                                              "1", "0", "0", "0"]
     assert "0.00 1.00 1.00" in out  # si's curve
+
+
+# ---------------------------------------------------------------------- a bridged model's goal
+def _bridged(env, **cfg):
+    """An agent relocated into ``h-e002`` (no chair) that bridged to ``h-e000`` (a chair at
+    (2, 1) of that model, seen from six states) with ``T`` (episode frame -> h-e000)."""
+    from kgnav.agent.relocation import Relocation, Verdict
+
+    believed = _model("h-e000", [("chair", 2.0, 1.0), ("sofa", 0.0, 2.0)], views=6)
+    bare = _model("h-e002", [("sofa", 0.0, 2.0)], views=6)
+    agent = _agent(env, Memory({m.model_id: m for m in (believed, bare)}), **cfg)
+    agent.reset("chair")
+    T = (1.0, 0.5, np.pi / 2)
+    agent.relocalizer.relocation = Relocation(0, "h-e002", "s0", 0.0, (0.0, 0.0, 0.0),
+                                              (0.0, 0.0))
+    agent.relocalizer.bridges["h-e000"] = Verdict(True, "verified", T)
+    return agent, T, f"h-e000/{_ids(believed)[0]}"
+
+
+def test_a_goal_in_a_bridged_model_is_headed_for_through_the_bridge(env):
+    agent, T, bridged_id = _bridged(env)
+    t = agent._model_goal((0.0, 0.0, 0.0))
+    assert t is not None and t.source == "memory" and t.object_id == bridged_id
+    # the point is the chair's, mapped from the bridged model's frame into the episode's
+    assert se2.apply_to_point(T, *t.point) == pytest.approx((2.0, 1.0))
+    assert t.point == pytest.approx(se2.apply_to_point(se2.inverse(T), 2.0, 1.0))
+    # this episode's looks at it are not in that model: not seen on arrival, it is given up
+    assert not agent._still_believed(bridged_id)
+    # a goal seen live replaces it (the bridged model's evidence is not weighed against it)
+    from kgnav.agent.loop import Target
+    assert agent._overrides(Target("live", (9.0, 9.0), "o0"), t)
+    # given up once, it is not headed for again
+    agent.log_.rejected.append(bridged_id)
+    assert agent._model_goal((0.0, 0.0, 0.0)) is None
+
+
+def test_a_bridged_goal_only_when_relocated_unambiguous_and_switched_on(env):
+    agent, _, _ = _bridged(env, bridged_goals=False)
+    assert agent._model_goal((0.0, 0.0, 0.0)) is None
+    agent, _, _ = _bridged(env)
+    agent.relocalizer.relocation = None  # no relocation stands: no bridge to go through
+    assert agent._model_goal((0.0, 0.0, 0.0)) is None
+    agent, _, _ = _bridged(env)
+    agent.relocalizer.ambiguity = lambda mid, v, scans=None: v  # a repeated room
+    assert agent._model_goal((0.0, 0.0, 0.0)) is None
+    assert AgentConfig.paper().bridged_goals is False
+
+
+def test_the_relocated_models_own_goal_comes_before_a_bridged_one(env):
+    agent, _, bridged_id = _bridged(env)
+    own = _model("h-e002", [("chair", 5.0, 5.0)], views=6)
+    agent.memory = Memory({"h-e000": agent.memory.model("h-e000"), "h-e002": own})
+    agent.current_ = own
+    agent._scans = ScanTable(own)
+    t = agent._model_goal((0.0, 0.0, 0.0))
+    assert t is not None and t.object_id == _ids(own)[0] and t.object_id != bridged_id

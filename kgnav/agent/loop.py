@@ -109,6 +109,10 @@ class AgentConfig:
     # stored as weak views of the objects they see (None: off); what they are worth to the
     # belief in an object is goals.belief's weak_weight (kgnav.memory.evidence)
     weak_score: float | None = None
+    # when the model relocated into holds no goal the rules trust, head for one of another
+    # stored model this episode verifiably reached too (a bridge, not ambiguous), through
+    # that bridge's transform: a house's memory split over two models is still one memory
+    bridged_goals: bool = True
 
     def __post_init__(self):
         if self.live_override not in LIVE_OVERRIDES:
@@ -136,7 +140,7 @@ class AgentConfig:
                                                unique=False, merge_check=False,
                                                late_match=False),
                    seed_map=False, unknown_speed=1.0, confirm_distance=0.0, soft_search="area",
-                   live_override="always", look_around=False)
+                   live_override="always", look_around=False, bridged_goals=False)
         return replace(base, **overrides)
 
 
@@ -287,6 +291,7 @@ class ObjectNavAgent:
         self.current_: AbstractModel = self.model_  # the merged model after a relocation
         self._scans = ScanTable(self.model_)  # range profiles of current_'s states
         self._evidence: dict = {}  # goal candidates' evidence, recounted every few states
+        self._bridged: dict[str, tuple] = {}  # bridged model -> (usable, ScanTable, evidence)
         self.log_ = EpisodeLog()
         self.step_ = 0
         self._prev: tuple[str, str] | None = None  # (state in model_, state in current_)
@@ -575,6 +580,8 @@ class ObjectNavAgent:
         return self._drop(target)
 
     def _still_believed(self, object_id: str | None) -> bool:
+        # a bridged model's object: this episode's looks at it are not in that model, so
+        # its own evidence would overrule them; not seen on arrival, it is given up
         if object_id is None or object_id not in self.current_.graph:
             return False
         goals = self.config.goals
@@ -592,6 +599,8 @@ class ObjectNavAgent:
         if self.config.live_override == "always" or remembered.object_id is None:
             return True
         if math.dist(live.point, remembered.point) <= 1.0:
+            return True
+        if remembered.object_id not in self.current_.graph:  # a bridged model's
             return True
         ids = [live.object_id, remembered.object_id]
         ev = object_evidence(self.current_, ids, table=self._scans, cache=self._evidence,
@@ -704,7 +713,7 @@ class ObjectNavAgent:
         episode frame."""
         model = self.current_
         if self.goal not in model.classes:
-            return None
+            return self._bridged_goal(pose)
         near = pose[:2] if self.relocation_ is None else self._to_model(pose)[:2]
         cur = self._target
         info = choose_goal(model, self.goal, near, self.config.goals,
@@ -712,7 +721,7 @@ class ObjectNavAgent:
                            cache=self._evidence,
                            current=cur.object_id if cur is not None else None)
         if info is None:
-            return None
+            return self._bridged_goal(pose)
         xy = info.position[:2]
         if self.relocation_ is not None:
             xy = se2.apply_to_point(se2.inverse(self.relocation_.transform), *xy)
@@ -724,6 +733,50 @@ class ObjectNavAgent:
         lo, hi = self.config.soft_radius_bounds
         d = math.dist(self.relocation_.at if self.relocation_ else pose[:2], xy)
         return Target("memory", xy, info.id, min(max(self.config.soft_radius_factor * d, lo), hi))
+
+    def _bridged_goal(self, pose) -> Target | None:
+        """The goal from another stored model this episode bridged to (the relocalizer's
+        verified matches into models other than the one relocated into), mapped into the
+        episode frame by the bridge's transform; the nearest over the bridges. Its id is
+        ``<model id>/<object id>``. A bridge whose alignment is ambiguous (a repeated room)
+        is not used: it was verified on a few profiles, without the confirmation a
+        relocation gets."""
+        if (not self.config.bridged_goals or self.relocation_ is None
+                or not self.relocalizer.bridges):
+            return None
+        cur = self._target
+        best: tuple[float, Target] | None = None
+        for mid, v in sorted(self.relocalizer.bridges.items()):
+            model = self.memory.model(mid)
+            if self.goal not in model.classes or not self._bridge_usable(mid, v):
+                continue
+            prefix = f"{mid}/"
+            near = se2.compose(v.transform, pose)[:2]
+            info = choose_goal(model, self.goal, near, self.config.goals,
+                               exclude={r[len(prefix):] for r in self.log_.rejected
+                                        if r.startswith(prefix)},
+                               table=self._bridged[mid][1], cache=self._bridged[mid][2],
+                               current=(cur.object_id[len(prefix):] if cur is not None
+                                        and (cur.object_id or "").startswith(prefix)
+                                        else None))
+            if info is None:
+                continue
+            xy = se2.apply_to_point(se2.inverse(v.transform), *info.position[:2])
+            t = Target("memory", (float(xy[0]), float(xy[1])), prefix + info.id,
+                       stage="point")
+            d = math.dist(pose[:2], t.point)
+            if best is None or d < best[0]:
+                best = (d, t)
+        return best[1] if best is not None else None
+
+    def _bridge_usable(self, mid: str, verdict) -> bool:
+        """Whether a bridge's model may give goals: its alignment unambiguous (asked once)."""
+        if mid not in self._bridged:
+            ok = (not self.config.relocation.geometry or not self.config.relocation.unique
+                  or self.relocalizer.ambiguity(mid, verdict) is None)
+            # a stored model does not change during the episode: its evidence is cached
+            self._bridged[mid] = (ok, ScanTable(self.memory.model(mid)) if ok else None, {})
+        return self._bridged[mid][0]
 
     def _live_goal(self, p: Percept) -> Target | None:
         """The goal in the current frame: the nearest goal-class object the current state
