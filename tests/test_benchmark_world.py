@@ -238,6 +238,27 @@ def test_eval_relocation_option(tmp_path, cli):
         assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
 
 
+def test_eval_goals_per_class_floor(tmp_path, cli):
+    """--goals remembered_floor=CLASS:FLOOR,... is parsed into pairs and recorded; a malformed
+    pair, a floor out of range, or a class the environment does not have is one line."""
+    code, out, err = cli("eval", "--split", "val-small", "--variants", "oracle", "--scenes", "1",
+                         "--episodes", "1", "--goals", "remembered_floor=sofa:0.78,bed:0.85",
+                         "--out", tmp_path / "r", "--quiet")
+    assert code == 0, err
+    goals = json.loads((tmp_path / "r" / "config.json").read_text())["agent"]["goals"]
+    assert goals["remembered_floor"] == [["sofa", 0.78], ["bed", 0.85]]
+    for arg, needle in (("remembered_floor=sofa=0.7", "NAME:NUMBER"),
+                        ("remembered_floor=sofa:high", "NAME:NUMBER"),
+                        ("remembered_floor=sofa:1.5", "remembered_floor must give")):
+        code, out, err = cli("eval", "--goals", arg, "--out", tmp_path / "m")
+        assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
+    code, out, err = cli("eval", "--split", "val-small", "--variants", "oracle", "--scenes", "1",
+                         "--episodes", "1", "--goals", "remembered_floor=unicorn:0.5",
+                         "--out", tmp_path / "u", "--quiet")
+    assert code == 1 and "unknown object class 'unicorn'" in err
+    assert len(err.strip().splitlines()) == 1
+
+
 # --------------------------------------------------------------------------- paired intervals
 def test_paired_bootstrap_is_seeded_and_centred():
     rng = np.random.default_rng(1)

@@ -371,3 +371,33 @@ def test_a_floor_on_confidence_refuses_even_a_class_s_only_candidate():
     assert choose_goal(lone(0.6), "chair", (0.0, 0.0), floor) is None
     assert choose_goal(lone(0.9), "chair", (0.0, 0.0), floor) is not None
     assert choose_goal(lone(0.6, n=2), "chair", (0.0, 0.0), floor) is not None
+
+
+def test_a_per_class_floor_refuses_a_remembered_lone_candidate_not_one_seen_now():
+    """``remembered_floor``: a lone sofa remembered at 0.7 is no goal under a sofa floor of
+    0.78, one at 0.9 is; perceived in this episode it is spared (judged on arrival); a class
+    without a floor, or no ``perceived`` set at all (the caller judges what it sees), is not
+    floored."""
+    from kgnav.agent.goals import GoalConfig, choose_goal
+
+    def lone(cls, score, n=5):
+        m = AbstractModel(2, model_id="c")
+        for k in range(n):
+            m.add_state([1.0, 0.05 * k], (0, 0.05 * k, 0),
+                        [Detection(cls, (-2.0, 0.0, 0.4), score=score)])
+        return m
+
+    cfg = GoalConfig(remembered_floor=(("sofa", 0.78), ("bed", 0.85)))
+    low, high = lone("sofa", 0.7), lone("sofa", 0.9)
+    oid = next(iter(low.objects()))
+    assert choose_goal(low, "sofa", (0.0, 0.0), cfg, perceived=set()) is None
+    assert choose_goal(high, "sofa", (0.0, 0.0), cfg, perceived=set()) is not None
+    assert choose_goal(low, "sofa", (0.0, 0.0), cfg, perceived={oid}) is not None
+    assert choose_goal(low, "sofa", (0.0, 0.0), cfg) is not None  # perceived=None: all spared
+    assert choose_goal(lone("chair", 0.6), "chair", (0.0, 0.0), cfg, perceived=set()) is not None
+    assert choose_goal(lone("sofa", 0.7, n=2), "sofa", (0.0, 0.0), cfg,
+                       perceived=set()) is not None  # seen twice: not judged yet
+    assert choose_goal(low, "sofa", (0.0, 0.0), GoalConfig(), perceived=set()) is not None
+    for bad in ((("sofa", 1.5),), (("sofa", 0.7), ("sofa", 0.8)), ((3, 0.5),)):
+        with pytest.raises(ValueError, match="remembered_floor"):
+            GoalConfig(remembered_floor=bad)

@@ -91,3 +91,52 @@ def test_a_run_it_cannot_draw_says_so_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "none of its 1 models belongs to a house of split 'val-small'" in err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_goal_floors_calibrates_per_class_on_a_runs_memory(tmp_path, capsys):
+    """`kgnav goal-floors`: the stored objects' confidence split into real and phantom by
+    ground truth (in the world, through the model's frame), and a floor for a class whose
+    real objects are surer than its phantoms, none where they overlap."""
+    from kgnav.benchmark import fidelity
+    from kgnav.common import se2
+    from kgnav.sim.sources import scene_source
+
+    source = scene_source("val-small", None)
+    scene = source.scene(0)
+    start = source.episodes(0, 2)[0].start
+    to_model = se2.inverse(start)
+    m = AbstractModel(2, model_id=f"{scene.name}-e000")
+    plants = [o for o in scene.objects if o.cls == "plant"]
+    chairs = [o for o in scene.objects if o.cls == "chair"]
+    assert len(plants) >= 3 and len(chairs) >= 3
+    dets = []
+    for k, o in enumerate(plants):  # real plants seen surely, phantom plants less so
+        dets.append(("plant", (o.x0 + o.x1) / 2, (o.y0 + o.y1) / 2, 0.9 + 0.01 * k))
+        dets.append(("plant", -5.0 - 3 * k, -5.0, 0.6))
+    for k, o in enumerate(chairs):  # chairs: phantoms as sure as the real ones
+        dets.append(("chair", (o.x0 + o.x1) / 2, (o.y0 + o.y1) / 2, 0.7))
+        dets.append(("chair", -5.0 - 3 * k, -9.0, 0.75))
+    for k in range(3):
+        m.add_state([1.0, float(k)], (0, 0, 0),
+                    [Detection(c, (*se2.apply_to_point(to_model, x, y), 0.4), score=s)
+                     for c, x, y, s in dets])
+    stats = fidelity.confidence_by_class([(m, start)], scene.objects)
+    assert len(stats["plant"]["real"]) == len(plants)
+    assert len(stats["plant"]["phantom"]) == len(plants)
+    assert sorted(stats["chair"]["phantom"]) == pytest.approx([0.75] * len(chairs))
+    (tmp_path / "config.json").write_text(json.dumps({"split": "val-small", "episodes": 2}))
+    (tmp_path / "memory" / "si").mkdir(parents=True)
+    m.save(tmp_path / "memory" / "si" / f"{m.model_id}.graphml")
+    def run(*args):
+        with pytest.raises(SystemExit) as exc:
+            main(["goal-floors", str(tmp_path), *args])
+        return exc.value.code
+
+    assert run("--json") == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["floors"] == {"plant": 0.9}
+    assert out["classes"]["chair"]["phantom"]["n"] == len(chairs)
+    assert run() == 0
+    assert "--goals remembered_floor=plant:0.90" in capsys.readouterr().out
+    assert run("--variant", "sp") == 1  # no such memory: one line
+    assert "no stored memory for 'sp'" in capsys.readouterr().err

@@ -36,13 +36,15 @@ SOFA = ObjectInstance(2, "sofa", 0, 0.0, 5.0, 2.0, 6.0, 0.0, 0.8, (0, 0, 0))
 STARTS = {0: (0.0, 0.0, 0.0), 1: (4.0, 0.0, np.pi / 2), 2: (1.0, 1.0, 0.0)}
 
 
-def _model(model_id: str, objects, views: int = 3, episode: int = 0) -> AbstractModel:
+def _model(model_id: str, objects, views: int = 3, episode: int = 0,
+           score: float = 1.0) -> AbstractModel:
     """A model whose states (in a row along x) each see ``objects`` ((class, x, y), model
     frame), ``views`` states in all."""
     m = AbstractModel(4, model_id=model_id)
     for k in range(views):
         m.add_state(np.eye(4, dtype=np.float32)[k % 4], (0.1 * k, 0.0, 0.0),
-                    [Detection(c, (x, y, 0.4)) for c, x, y in objects], episode=episode, step=k)
+                    [Detection(c, (x, y, 0.4), score=score) for c, x, y in objects],
+                    episode=episode, step=k)
     return m
 
 
@@ -387,3 +389,30 @@ def test_the_relocated_models_own_goal_comes_before_a_bridged_one(env):
     agent._scans = ScanTable(own)
     t = agent._model_goal((0.0, 0.0, 0.0))
     assert t is not None and t.object_id == _ids(own)[0] and t.object_id != bridged_id
+
+
+def test_the_remembered_floor_applies_to_what_the_episode_has_not_seen(env):
+    """``goals.remembered_floor`` through the loop: a remembered chair under its class's floor
+    is no goal, nor is it once it is the bridged model's; seen in this episode it is one
+    again; a floor for a class the agent does not know is refused when the agent is made."""
+    from kgnav.agent.goals import GoalConfig
+    from kgnav.errors import UnknownClassError
+
+    floor = GoalConfig(remembered_floor=(("chair", 1.0),))  # the bridged chair's scores: 1.0
+    agent, _, bridged_id = _bridged(env, goals=floor)
+    assert agent._model_goal((0.0, 0.0, 0.0)).object_id == bridged_id  # at the floor: kept
+    agent, _, _ = _bridged(env, goals=GoalConfig(remembered_floor=(("chair", 1.0),
+                                                                   ("sofa", 0.5))))
+    low = _model("h-e000", [("chair", 2.0, 1.0)], views=6, score=0.8)
+    agent.memory = Memory({"h-e000": low, "h-e002": agent.memory.model("h-e002")})
+    agent._bridged.clear()
+    # the same chair scored under its floor: remembered only, it is no goal
+    assert agent._model_goal((0.0, 0.0, 0.0)) is None
+    own = _model("h-e002", [("chair", 5.0, 5.0)], views=6, score=0.8)
+    agent.current_, agent._scans = own, ScanTable(own)
+    assert agent._model_goal((0.0, 0.0, 0.0)) is None
+    agent._seen_here = set(_ids(own))
+    t = agent._model_goal((0.0, 0.0, 0.0))
+    assert t is not None and t.object_id == _ids(own)[0]
+    with pytest.raises(UnknownClassError, match="unicorn"):
+        _agent(env, None, goals=GoalConfig(remembered_floor=(("unicorn", 0.5),)))

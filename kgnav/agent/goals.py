@@ -15,6 +15,9 @@
   classes than of others (of beds than of plants); a class's only candidate stays, unless
   ``min_score`` (off by default) is set: then a candidate seen from ``score_views`` states
   whose mean confidence is below it is left out even when it is the only one.
+  ``remembered_floor`` (off by default) does the same per class, for remembered candidates
+  only (those the episode has not perceived itself): the segmenter is surer of some classes
+  than of others, and a candidate seen in this episode is judged on arrival anyway.
 
 Either rule skips objects seen from fewer than ``min_views`` states and the ids excluded by
 the caller (objects already looked for and not found).
@@ -55,20 +58,34 @@ class GoalConfig:
     score_views: int = 3  # ... among those seen from this many states
     min_score: float = 0.0  # belief rule: leave out a candidate seen from score_views states
     # whose views' mean detection confidence is below this, even its class's only one (0: off)
+    # belief rule, per class ((class, floor), ...): leave out a *remembered* candidate (one
+    # this episode has not perceived itself) seen from score_views states whose mean
+    # confidence is below its class's floor, even the class's only one; what the agent sees
+    # itself is judged on arrival instead. Calibrated per class on a run's memory against
+    # ground truth (kgnav goal-floors); empty: off
+    remembered_floor: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self):
         if self.rule not in GOAL_RULES:
             raise ValueError(f"goal rule must be one of {GOAL_RULES}, got {self.rule!r}")
+        floors = dict(self.remembered_floor)
+        if len(floors) != len(self.remembered_floor) or not all(
+                isinstance(c, str) and 0.0 <= float(v) <= 1.0 for c, v in floors.items()):
+            raise ValueError(f"remembered_floor must give each class once a floor in [0, 1], "
+                             f"got {self.remembered_floor!r}")
 
 
 def choose_goal(model: AbstractModel, cls: str, near, config: GoalConfig,
                 exclude=(), table: ScanTable | None = None, among=None,
-                cache: dict | None = None, current: str | None = None) -> ObjectInfo | None:
+                cache: dict | None = None, current: str | None = None,
+                perceived=None) -> ObjectInfo | None:
     """The object of class ``cls`` to head for from ``near`` (model frame), or None;
     ``among``: consider only these object ids; ``cache``: evidence kept between calls (see
     :func:`kgnav.memory.evidence.object_evidence`); ``current``: the object headed for so far, which
     stays the goal while it qualifies unless another is closer by more than
-    ``config.keep_margin`` (walking past one goal toward another does not flip between them).
+    ``config.keep_margin`` (walking past one goal toward another does not flip between them);
+    ``perceived``: the ids this episode perceived itself, which ``config.remembered_floor``
+    spares (None: every candidate is one the episode perceived, the floor spares all).
     """
     if among is not None:
         exclude = set(exclude) | {o for o in model._index.by_class.get(cls, ())
@@ -82,9 +99,13 @@ def choose_goal(model: AbstractModel, cls: str, near, config: GoalConfig,
         return None
     ev = object_evidence(model, [o.id for o in cands], table=table, cache=cache,
                          stale=config.evidence_refresh, weak_below=config.belief.weak_below)
+    class_floor = (dict(config.remembered_floor).get(cls, 0.0) if perceived is not None
+                   else 0.0)
     trusted = [o for o in cands if trusts(ev[o.id], config)
                and (ev[o.id].n_views < config.score_views
-                    or ev[o.id].mean_score >= config.min_score)]
+                    or ev[o.id].mean_score >= max(config.min_score,
+                                                  0.0 if perceived is None or o.id in perceived
+                                                  else class_floor))]
     judged = [ev[o.id].mean_score for o in trusted if ev[o.id].n_views >= config.score_views]
     if judged and math.isfinite(config.score_margin):
         floor = max(judged) - config.score_margin

@@ -252,6 +252,9 @@ class ObjectNavAgent:
         self.policy = policy or FrontierPolicy()
         self.memory = memory
         self.config = config or AgentConfig()
+        for cls, _ in self.config.goals.remembered_floor:  # a typo would silently do nothing
+            if cls not in self.classes:
+                raise UnknownClassError(cls, self.classes)
         self.planner = planner or FMMPlanner(agent_radius=agent_radius,
                                              turn_tolerance_deg=self._aim_tolerance,
                                              unknown_speed=self.config.unknown_speed)
@@ -694,7 +697,8 @@ class ObjectNavAgent:
         if remembered & period.perceived:
             return "goal_seen_in_episode"
         if remembered and choose_goal(period.model, self.goal, (0.0, 0.0), self.config.goals,
-                                      table=period.scans, among=remembered) is not None:
+                                      table=period.scans, among=remembered,
+                                      perceived=period.seen) is not None:
             return "live_detection_preferred" if period.perceived else "other"
         matched = set(self.relocalizer.matched) - {period.model_id}
         if any(self._believes_goal(self.memory.model(mid)) for mid in sorted(matched)):
@@ -706,7 +710,8 @@ class ObjectNavAgent:
     def _believes_goal(self, model: AbstractModel) -> bool:
         """Whether the goal rule would head for some object of ``model`` (its own evidence)."""
         return (self.goal in model.classes
-                and choose_goal(model, self.goal, (0.0, 0.0), self.config.goals) is not None)
+                and choose_goal(model, self.goal, (0.0, 0.0), self.config.goals,
+                                perceived=()) is not None)
 
     def _model_goal(self, pose) -> Target | None:
         """The goal point from the current model (:mod:`kgnav.agent.goals`), mapped into the
@@ -719,7 +724,8 @@ class ObjectNavAgent:
         info = choose_goal(model, self.goal, near, self.config.goals,
                            exclude=set(self.log_.rejected), table=self._scans,
                            cache=self._evidence,
-                           current=cur.object_id if cur is not None else None)
+                           current=cur.object_id if cur is not None else None,
+                           perceived=self._seen_here)
         if info is None:
             return self._bridged_goal(pose)
         xy = info.position[:2]
@@ -758,7 +764,7 @@ class ObjectNavAgent:
                                table=self._bridged[mid][1], cache=self._bridged[mid][2],
                                current=(cur.object_id[len(prefix):] if cur is not None
                                         and (cur.object_id or "").startswith(prefix)
-                                        else None))
+                                        else None), perceived=())
             if info is None:
                 continue
             xy = se2.apply_to_point(se2.inverse(v.transform), *info.position[:2])

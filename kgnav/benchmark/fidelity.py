@@ -221,3 +221,50 @@ def error_summary(residuals) -> dict:
         return {"median": None, "p95": None, "states": 0}
     return {"median": round(float(np.median(r)), 6),
             "p95": round(float(np.percentile(r, 95)), 6), "states": int(r.size)}
+
+
+def confidence_by_class(models: Iterable[tuple[AbstractModel, tuple]], instances,
+                        min_views: int = 3, tolerance: float = TOLERANCE
+                        ) -> dict[str, dict[str, list[float]]]:
+    """The mean detection confidence (:attr:`~kgnav.memory.evidence.Evidence.mean_score`) of
+    every object seen from at least ``min_views`` states, by class, split into those that
+    stand for a real instance and phantoms: ``{cls: {"real": [...], "phantom": [...]}}``.
+    What a per-class confidence floor for remembered goals is calibrated on
+    (:func:`suggest_floors`, ``GoalConfig.remembered_floor``)."""
+    by_cls = _by_class(instances)
+    out: dict[str, dict[str, list[float]]] = {}
+    for model, frame in models:
+        ev = object_evidence(model)
+        nodes = model.graph.nodes
+        for o in model.objects():
+            if ev[o].n_views < min_views:
+                continue
+            cls = nodes[o]["cls"]
+            x, y = se2.apply_to_point(frame, nodes[o]["x"], nodes[o]["y"])
+            real = stands_for_instance(cls, x, y, by_cls, tolerance) is not None
+            part = out.setdefault(cls, {"real": [], "phantom": []})
+            part["real" if real else "phantom"].append(ev[o].mean_score)
+    return out
+
+
+def suggest_floors(stats: Mapping[str, Mapping[str, list[float]]], quantile: float = 0.1,
+                   min_objects: int = 3) -> dict[str, float]:
+    """Per class, a confidence floor for remembered goal candidates: the ``quantile`` of its
+    real objects' confidence (rounded down to 0.01), where that lies above the median of its
+    phantoms; none where the two overlap (the floor would drop real objects with the
+    phantoms), nor for a class with fewer than ``min_objects`` of either.
+
+    >>> stats = {"bed": {"real": [0.85, 0.88, 0.9, 0.9, 0.92, 0.95], "phantom": [0.7] * 3},
+    ...          "chair": {"real": [0.7] * 10, "phantom": [0.72] * 5}}
+    >>> suggest_floors(stats)
+    {'bed': 0.86}
+    """
+    out = {}
+    for cls, part in sorted(stats.items()):
+        real, phantom = part.get("real", []), part.get("phantom", [])
+        if len(real) < min_objects or len(phantom) < min_objects:
+            continue
+        floor = math.floor(float(np.quantile(real, quantile)) * 100 + 1e-9) / 100
+        if floor > float(np.median(phantom)):
+            out[cls] = floor
+    return out

@@ -77,11 +77,11 @@ def draw_memory(scene: Scene, models: Sequence[tuple[str, AbstractModel, tuple]]
     return img
 
 
-def draw_run(run_dir: str | os.PathLike[str], variant: str = "si",
-             out: str | os.PathLike[str] | None = None, ppm: float = 30.0) -> list[Path]:
-    """Draw the memory ``variant`` left in a ``kgnav eval`` output directory, one PNG per
-    house (``pre-explored`` for the hp/sp memory) into ``out`` (default: ``RUN/memory``).
-    Returns the paths written."""
+def run_memory(run_dir: str | os.PathLike[str], variant: str = "si"):
+    """The memory ``variant`` left in a ``kgnav eval`` output directory of kgnav's own
+    houses, house by house: a list of ``(scene, [(model id, model, world frame), ...])``
+    (``pre-explored`` for the hp/sp memory). One-line errors (:class:`KgnavError`) for a
+    directory that is no such output, another environment's, or one without that memory."""
     from kgnav.benchmark.runner import _house_of
     from kgnav.memory.store import ModelStore
     from kgnav.sim.sources import scene_source
@@ -91,9 +91,9 @@ def draw_run(run_dir: str | os.PathLike[str], variant: str = "si",
         cfg = json.loads((run / "config.json").read_text(encoding="utf-8"))
         env = cfg.get("env", "kgnav")
         if env != "kgnav":
-            # the drawing needs the house's floor plan, which only kgnav's own scenes give here
-            raise KgnavError(f"{run}: a run on environment {env!r}; memory-map draws the "
-                             "houses of kgnav's own simulator only")
+            # the ground truth needed (floor plans, episode starts) is kgnav's own scenes'
+            raise KgnavError(f"{run}: a run on environment {env!r}; only runs on kgnav's own "
+                             "simulator can be read against their houses")
         source = scene_source(cfg["split"], cfg.get("scenes_dir"))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise KgnavError(f"{run}: not a kgnav eval output directory ({exc})") from None
@@ -108,8 +108,7 @@ def draw_run(run_dir: str | os.PathLike[str], variant: str = "si",
     models, problems = ModelStore(store_dir).load_all()
     if problems:
         raise KgnavError(f"{store_dir}: {problems[0]}")
-    out_dir = Path(out) if out is not None else run / "memory"
-    written = []
+    houses = []
     for k in range(len(source)):
         scene = source.scene(k)
         mine = sorted((mid, m) for mid, m in models.items() if _house_of(mid) == scene.name)
@@ -120,10 +119,22 @@ def draw_run(run_dir: str | os.PathLike[str], variant: str = "si",
         for mid, m in mine:
             tag = mid.rpartition("-")[2]
             framed.append((mid, m, episodes[0 if tag == "pre" else int(tag[1:])].start))
+        houses.append((scene, framed))
+    if models and not houses:
+        raise KgnavError(f"{store_dir}: none of its {len(models)} models belongs to a house of "
+                         f"split {cfg['split']!r}")
+    return houses
+
+
+def draw_run(run_dir: str | os.PathLike[str], variant: str = "si",
+             out: str | os.PathLike[str] | None = None, ppm: float = 30.0) -> list[Path]:
+    """Draw the memory ``variant`` left in a ``kgnav eval`` output directory, one PNG per
+    house (``pre-explored`` for the hp/sp memory) into ``out`` (default: ``RUN/memory``).
+    Returns the paths written."""
+    out_dir = Path(out) if out is not None else Path(run_dir) / "memory"
+    written = []
+    for scene, framed in run_memory(run_dir, variant):
         path = out_dir / f"{variant}_{scene.name}.png"
         draw_memory(scene, framed, path, ppm)
         written.append(path)
-    if models and not written:
-        raise KgnavError(f"{store_dir}: none of its {len(models)} models belongs to a house of "
-                         f"split {cfg['split']!r}")
     return written

@@ -67,7 +67,7 @@ from kgnav.envs import (
     make_env,
 )
 from kgnav.envs.protocol import episode_seed
-from kgnav.errors import KgnavError
+from kgnav.errors import KgnavError, UnknownClassError
 from kgnav.memory.evidence import forget
 from kgnav.memory.model import AbstractModel
 from kgnav.memory.posegraph import DriftModel
@@ -1353,6 +1353,11 @@ def run_eval(cfg: EvalConfig, out: str | os.PathLike | None, progress: bool = Tr
     cfg = with_env_weights(cfg)
     extractor_name = resolve_extractor(cfg.extractor, cfg.encoder_weights)
     check_domains(cfg, extractor_name)
+    if cfg.agent.goals.remembered_floor and cfg.scene_indices:  # before any episode runs
+        classes = _env(cfg, cfg.scene_indices[0]).env_spec.classes
+        for cls, _ in cfg.agent.goals.remembered_floor:
+            if cls not in classes:
+                raise UnknownClassError(cls, classes)
     features = _extractor(extractor_name, cfg.encoder_weights).name  # weights' fingerprint
     out_dir = Path(out) if out is not None else None
     engine = make_engine(cfg.engine, cfg.workers, cfg.address, _worker_init)

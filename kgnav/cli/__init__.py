@@ -33,7 +33,7 @@ def _register() -> None:
 
     for cmd in (memory.inspect, memory.merge_cmd, memory.query_cmd, memory.export_cmd,
                 memory.store_app, memory.cypher_cmd, memory.demo, eval_group.eval_cmd,
-                eval_group.memory_map,
+                eval_group.memory_map, eval_group.goal_floors,
                 scenes.scenes, encoder.train_encoder, encoder.relocation_bench,
                 segmenter.train_segmenter, segmenter.segmenter_bench, policy.train_policy,
                 policy.policy_bench):

@@ -1,12 +1,15 @@
-"""``kgnav eval`` and ``kgnav memory-map``: the ObjectNav benchmark from the command line (see
-:mod:`kgnav.benchmark.runner`) and the memories a run left, drawn over its houses."""
+"""``kgnav eval``, ``kgnav memory-map`` and ``kgnav goal-floors``: the ObjectNav benchmark from
+the command line (see :mod:`kgnav.benchmark.runner`), the memories a run left, drawn over its
+houses, and the confidence floors for remembered goals calibrated on them."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
 import click
+import numpy as np
 from rich.console import Console
 from rich.table import Table
 
@@ -70,6 +73,9 @@ def _settings(config_cls, what: str):
             try:
                 if isinstance(default, bool):
                     value = click.BOOL.convert(text.strip(), param, ctx)
+                elif isinstance(default, tuple) and (not default
+                                                     or isinstance(default[0], tuple)):
+                    value = tuple(_pair(v) for v in text.split(","))  # NAME:NUMBER,...
                 elif isinstance(default, tuple):
                     value = tuple(float(v) for v in text.split(","))
                     if len(value) != len(default):
@@ -77,12 +83,20 @@ def _settings(config_cls, what: str):
                 else:
                     value = type(default)(text)
             except (ValueError, click.BadParameter):
-                raise click.BadParameter(f"{key} takes a value like {default!r}, got {text!r}",
+                like = "NAME:NUMBER,..." if default == () else repr(default)
+                raise click.BadParameter(f"{key} takes a value like {like}, got {text!r}",
                                          ctx, param) from None
             out[key] = value
         return out
 
     return parse
+
+
+def _pair(text: str) -> tuple[str, float]:
+    name, colon, number = text.partition(":")
+    if not colon or not name.strip():
+        raise ValueError(text)
+    return name.strip(), float(number)
 
 
 def _relocation(ctx, param, values: tuple[str, ...]) -> dict:
@@ -251,7 +265,10 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
     if relocation:
         agent = replace(agent, relocation=replace(agent.relocation, **relocation))
     if goals:
-        agent = replace(agent, goals=replace(agent.goals, **goals))
+        try:
+            agent = replace(agent, goals=replace(agent.goals, **goals))
+        except ValueError as exc:  # values each fine alone, refused by GoalConfig together
+            raise click.BadParameter(str(exc), param_hint="--goals") from None
     cfg = EvalConfig(split=split, scenes_dir=None if scenes_dir is None else str(scenes_dir),
                      variants=variants, scenes=scenes, episodes=episodes,
                      workers=workers, engine=engine, address=address, segmenter=segmenter,
@@ -398,3 +415,56 @@ def memory_map(run_dir: Path, variant: str, out_dir: Path | None, ppm: float) ->
 
     for path in draw_run(run_dir, variant, out_dir, ppm):
         click.echo(str(path))
+
+
+@click.command("goal-floors")
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--variant", default="si", show_default=True,
+              help="Whose memory: si, sem+si, or pre-explored (the hp/sp memory).")
+@click.option("--quantile", type=click.FloatRange(0.0, 0.5), default=0.1, show_default=True,
+              help="The share of a class's real objects a floor may leave out.")
+@click.option("--min-views", type=click.IntRange(min=1), default=3, show_default=True,
+              help="Judge objects seen from at least this many states (goals.score_views).")
+@click.option("--json", "as_json", is_flag=True, help="Print the table and floors as JSON.")
+def goal_floors(run_dir: Path, variant: str, quantile: float, min_views: int,
+                as_json: bool) -> None:
+    """Calibrate goals.remembered_floor on a `kgnav eval` run's memory: the mean detection
+    confidence of its real objects and of its phantoms, by class (ground truth), and for each
+    class where the two separate, the floor that leaves out at most QUANTILE of the real ones.
+    Calibrate on a noise-free run of train houses; pass the result to `kgnav eval --goals`."""
+    from kgnav.benchmark import fidelity
+    from kgnav.benchmark.memory_map import run_memory
+
+    stats: dict = {}
+    for scene, framed in run_memory(run_dir, variant):
+        part = fidelity.confidence_by_class([(m, f) for _, m, f in framed], scene.objects,
+                                            min_views)
+        for cls, d in part.items():
+            mine = stats.setdefault(cls, {"real": [], "phantom": []})
+            mine["real"] += d["real"]
+            mine["phantom"] += d["phantom"]
+    floors = fidelity.suggest_floors(stats, quantile)
+    setting = "remembered_floor=" + ",".join(f"{c}:{v:.2f}" for c, v in floors.items())
+    if as_json:
+        click.echo(json.dumps({"classes": {
+            c: {k: {"n": len(v), "median": float(np.median(v)) if v else None,
+                    "quantile": float(np.quantile(v, quantile)) if v else None}
+                for k, v in d.items()} for c, d in sorted(stats.items())},
+            "floors": floors}, indent=2))
+        return
+    table = Table(title=f"Mean detection confidence of stored objects seen from {min_views}+ "
+                        f"states ({variant})")
+    for col in ("class", "real: n", f"q{quantile:g}", "median", "phantoms: n", "median",
+                "floor"):
+        table.add_column(col)
+    for cls, d in sorted(stats.items()):
+        r, p = d["real"], d["phantom"]
+        table.add_row(cls, str(len(r)), _f(float(np.quantile(r, quantile)) if r else None),
+                      _f(float(np.median(r)) if r else None), str(len(p)),
+                      _f(float(np.median(p)) if p else None), _f(floors.get(cls)))
+    out = Console(highlight=False)
+    if not out.is_terminal:
+        out = Console(highlight=False, width=140)
+    out.print(table)
+    click.echo(f"--goals {setting}" if floors else "no class separates real objects from "
+               "phantoms: no floor to set")
