@@ -140,3 +140,20 @@ def test_goal_floors_calibrates_per_class_on_a_runs_memory(tmp_path, capsys):
     assert "--goals remembered_floor=plant:0.90" in capsys.readouterr().out
     assert run("--variant", "sp") == 1  # no such memory: one line
     assert "no stored memory for 'sp'" in capsys.readouterr().err
+
+
+def test_goal_floors_prints_class_names_from_files_as_text(tmp_path, capsys):
+    """A class name in a model file is printed as it is, never as rich markup."""
+    from kgnav.sim.sources import scene_source
+
+    scene = scene_source("val-small", None).scene(0)
+    m = AbstractModel(2, model_id=f"{scene.name}-e000", classes=("[red]x[/red]", "chair"))
+    for k in range(3):
+        m.add_state([1.0, float(k)], (0, 0, 0), [Detection("[red]x[/red]", (-9.0, -9.0, 0.4))])
+    (tmp_path / "config.json").write_text(json.dumps({"split": "val-small", "episodes": 2}))
+    (tmp_path / "memory" / "si").mkdir(parents=True)
+    m.save(tmp_path / "memory" / "si" / f"{m.model_id}.graphml")
+    with pytest.raises(SystemExit) as exc:
+        main(["goal-floors", str(tmp_path)])
+    assert exc.value.code == 0
+    assert "[red]x[/red]" in capsys.readouterr().out

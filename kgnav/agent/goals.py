@@ -99,13 +99,15 @@ def choose_goal(model: AbstractModel, cls: str, near, config: GoalConfig,
         return None
     ev = object_evidence(model, [o.id for o in cands], table=table, cache=cache,
                          stale=config.evidence_refresh, weak_below=config.belief.weak_below)
-    class_floor = (dict(config.remembered_floor).get(cls, 0.0) if perceived is not None
-                   else 0.0)
+    remembered = max(config.min_score, dict(config.remembered_floor).get(cls, 0.0))
+
+    def least_score(oid: str) -> float:  # what a judged candidate's mean confidence must reach
+        spared = perceived is None or oid in perceived
+        return config.min_score if spared else remembered
+
     trusted = [o for o in cands if trusts(ev[o.id], config)
                and (ev[o.id].n_views < config.score_views
-                    or ev[o.id].mean_score >= max(config.min_score,
-                                                  0.0 if perceived is None or o.id in perceived
-                                                  else class_floor))]
+                    or ev[o.id].mean_score >= least_score(o.id))]
     judged = [ev[o.id].mean_score for o in trusted if ev[o.id].n_views >= config.score_views]
     if judged and math.isfinite(config.score_margin):
         floor = max(judged) - config.score_margin

@@ -17,6 +17,13 @@ from kgnav.errors import KgnavError
 # markup off: a class or file name like "[/bold]" is text, not a style
 out = Console(highlight=False, soft_wrap=True, markup=False, emoji=False)
 
+def wide_console(**options) -> Console:
+    """A console for wide tables: the terminal's width, or 140 columns for a log file or pipe
+    (which rich would squeeze to 80); ``options`` go to :class:`~rich.console.Console`."""
+    con = Console(highlight=False, **options)
+    return con if con.is_terminal else Console(highlight=False, width=140, **options)
+
+
 # C0/C1 controls, line and paragraph separators, bidirectional overrides
 _UNSAFE = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\u202a-\u202e\u2066-\u2069]")
 

@@ -18,6 +18,7 @@ from kgnav.agent.noise_segmenters import SEGMENTER_PRESETS
 from kgnav.benchmark.engines import ENGINES
 from kgnav.benchmark.failures import FAILURE_CLASSES
 from kgnav.benchmark.variants import VARIANTS
+from kgnav.cli._output import safe, wide_console
 from kgnav.errors import KgnavError
 from kgnav.sim.episodes import SPLITS
 
@@ -70,11 +71,12 @@ def _settings(config_cls, what: str):
                 raise click.BadParameter(
                     f"unknown {what} setting {key!r} (known: {', '.join(known)})", ctx, param)
             default = known[key]
+            # a tuple of (name, number) pairs, empty by default, or a fixed-length tuple of numbers
+            pairs = isinstance(default, tuple) and (not default or isinstance(default[0], tuple))
             try:
                 if isinstance(default, bool):
                     value = click.BOOL.convert(text.strip(), param, ctx)
-                elif isinstance(default, tuple) and (not default
-                                                     or isinstance(default[0], tuple)):
+                elif pairs:
                     value = tuple(_pair(v) for v in text.split(","))  # NAME:NUMBER,...
                 elif isinstance(default, tuple):
                     value = tuple(float(v) for v in text.split(","))
@@ -83,7 +85,7 @@ def _settings(config_cls, what: str):
                 else:
                     value = type(default)(text)
             except (ValueError, click.BadParameter):
-                like = "NAME:NUMBER,..." if default == () else repr(default)
+                like = "NAME:NUMBER,..." if pairs else repr(default)
                 raise click.BadParameter(f"{key} takes a value like {like}, got {text!r}",
                                          ctx, param) from None
             out[key] = value
@@ -304,9 +306,7 @@ def print_summary(summary: dict) -> None:
             *(str(s["failures"][c]) for c in FAILURE_CLASSES),
             f"{s['episodes_per_second']:.2f}" if s.get("episodes_per_second") else "",
         )
-    console = Console(highlight=False)
-    if not console.is_terminal:  # a log file or pipe: do not squeeze the table to 80 columns
-        console = Console(highlight=False, width=140)
+    console = wide_console()
     console.print(table)
     paired = {n: s["vs_ans"] for n, s in summary.items() if "vs_ans" in s}
     if paired:
@@ -457,14 +457,11 @@ def goal_floors(run_dir: Path, variant: str, quantile: float, min_views: int,
     for col in ("class", "real: n", f"q{quantile:g}", "median", "phantoms: n", "median",
                 "floor"):
         table.add_column(col)
-    for cls, d in sorted(stats.items()):
+    for cls, d in sorted(stats.items()):  # class names come from the model files: as text
         r, p = d["real"], d["phantom"]
-        table.add_row(cls, str(len(r)), _f(float(np.quantile(r, quantile)) if r else None),
+        table.add_row(safe(cls), str(len(r)), _f(float(np.quantile(r, quantile)) if r else None),
                       _f(float(np.median(r)) if r else None), str(len(p)),
                       _f(float(np.median(p)) if p else None), _f(floors.get(cls)))
-    out = Console(highlight=False)
-    if not out.is_terminal:
-        out = Console(highlight=False, width=140)
-    out.print(table)
-    click.echo(f"--goals {setting}" if floors else "no class separates real objects from "
+    wide_console(markup=False).print(table)
+    click.echo(f"--goals {safe(setting)}" if floors else "no class separates real objects from "
                "phantoms: no floor to set")

@@ -180,10 +180,10 @@ def segmenter_bench(split: str, out_dir: Path, n_frames: int, segmenters: list[s
     """
     import json
 
-    from rich.console import Console
     from tqdm import tqdm
 
     from kgnav.agent.segmentation import make_segmenter
+    from kgnav.cli._output import wide_console
     from kgnav.common.atomic import atomic_open
     from kgnav.common.classes import OBJECT_CLASSES
     from kgnav.errors import KgnavError
@@ -241,9 +241,7 @@ def segmenter_bench(split: str, out_dir: Path, n_frames: int, segmenters: list[s
                    out_dir / "confusion.png",
                    title=f"pixel confusion on {domain(env_name, split)}: {n_frames} frames, "
                          f"seed {seed}", classes=classes)
-    con = Console(highlight=False, soft_wrap=True)
-    if not con.is_terminal:  # a log file or pipe: do not squeeze the table to 80 columns
-        con = Console(highlight=False, soft_wrap=True, width=140)
+    con = wide_console(soft_wrap=True)
     con.print(bench_table(results, f"segmenters on {domain(env_name, split)}: {n_frames} "
                                    f"frames, seed {seed}"))
     for label, r in results.items():
