@@ -138,6 +138,10 @@ def test_goal_floors_calibrates_per_class_on_a_runs_memory(tmp_path, capsys):
     assert out["classes"]["chair"]["phantom"]["n"] == len(chairs)
     assert run() == 0
     assert "--goals remembered_floor=plant:0.90" in capsys.readouterr().out
+    # no true poses kept beside this memory: its own frame is its start frame
+    assert run("--frame", "start", "--json") == 0
+    assert json.loads(capsys.readouterr().out)["floors"] == {"plant": 0.9}
+    assert run("--frame", "world") == 2
     assert run("--variant", "sp") == 1  # no such memory: one line
     assert "no stored memory for 'sp'" in capsys.readouterr().err
 

@@ -141,11 +141,19 @@ def test_state_truth_pairs_states_with_the_pose_of_their_step():
 
 
 @pytest.fixture(scope="module")
-def runs():
+def run_dirs(tmp_path_factory):
     base = dict(split="val-small", variants=("si",), scenes=1, episodes=2, max_steps=80,
                 extractor="opencv-gist", segmenter="clean")
-    return {n: run_eval(EvalConfig(**base, noise=n), out=None, progress=False)[1]
-            for n in ("none", "locobot")}
+    out = {}
+    for n in ("none", "locobot"):
+        d = tmp_path_factory.mktemp(n)
+        out[n] = (d, run_eval(EvalConfig(**base, noise=n), out=d, progress=False)[1])
+    return out
+
+
+@pytest.fixture(scope="module")
+def runs(run_dirs):
+    return {n: summary for n, (_, summary) in run_dirs.items()}
 
 
 def test_summary_scores_the_stored_poses(runs):
@@ -164,6 +172,66 @@ def test_summary_scores_the_stored_poses(runs):
     assert s["relocation_rate"] > 0 and s["relocation_error_m"] is not None
     assert s["relocation_local_m"] < 0.1 and s["relocation_tracking_local_m"] < 0.1
     assert s["relocation_tracking_m"] is not None and "wrong_merges_local" in s
+
+
+def _turned(model_id: str = "h-e000"):
+    """A model whose start frame its creator's odometry turned by 6° early on: the stored
+    states and a chair seen from them, and the truth of the states (the same, turned back)."""
+    from kgnav.memory.model import Detection
+
+    m = AbstractModel(feature_dim=DIM, model_id=model_id)
+    rng = np.random.default_rng(3)
+    for k in range(10):
+        m.add_state(rng.normal(size=DIM).astype(np.float32), pose=(1.0 * k, 0.5, 0.0),
+                    step=k, detections=[Detection("chair", (9.0, 3.0, 0.4))] if k > 6 else [])
+    turn = (0.0, 0.0, math.radians(-6.0))  # where the stored frame truly lies in the world
+    return m, _truth_of(m, turn), turn
+
+
+def test_a_model_turned_by_its_creators_drift_is_scored_in_its_own_frame_too():
+    from kgnav.sim.house import ObjectInstance
+
+    m, truth, turn = _turned()
+    cx, cy = se2.apply_to_point(turn, 9.0, 3.0)  # the real chair: where the stored one truly is
+    chair = ObjectInstance(1, "chair", 0, cx - 0.25, cy - 0.25, cx + 0.25, cy + 0.25, 0.0,
+                           0.9, (0, 0, 0))
+    start = fidelity.score_memory([(m, se2.IDENTITY)], [chair])
+    assert start["precision"] == 0.0 and start["recall"] == 0.0  # 6° at 9.5 m: a metre off
+    assert np.allclose(fidelity.alignment(m, truth), turn, atol=1e-9)
+    own = fidelity.score_memory(fidelity.aligned_frames([(m, se2.IDENTITY)], truth), [chair])
+    assert own["precision"] == 1.0 and own["recall"] == 1.0
+    e = fidelity.frame_error(m, se2.IDENTITY, fidelity.alignment(m, truth))
+    assert e["error_deg"] == pytest.approx(6.0) and 0.3 < e["error_m"] < 0.6
+    # without the truth of its states (or of too few) a model stays in its start frame
+    frame = (1.0, 2.0, 0.3)
+    ((_, kept),) = fidelity.aligned_frames([(m, frame)], {})
+    assert kept is frame and fidelity.alignment(m, dict(list(truth.items())[:2])) is None
+
+
+def test_summary_scores_the_memory_in_its_own_frame_and_keeps_the_truth(run_dirs):
+    from kgnav.benchmark.memory_map import run_memory
+    from kgnav.benchmark.runner import read_truth, truth_path
+
+    for noise, (d, summary) in run_dirs.items():
+        pooled = summary["si"]["memory"]["pooled"]
+        own, raw = pooled["own_frame"], pooled
+        assert set(own) == {"objects", "precision", "trusted_precision", "recall", "copies"}
+        assert own["objects"] == raw["objects"]
+        off = pooled["frame_error_m"]
+        assert off["models"] >= 1
+        truth = read_truth(truth_path(d, "si"))
+        (house,) = truth.values()
+        assert len(house) == pooled["pose_error_m"]["states"]
+        (scene, framed), = run_memory(d, "si", "own")
+        (_, starts), = run_memory(d, "si", "start")
+        for (mid, m, at), (_, _, start) in zip(framed, starts, strict=True):
+            assert np.allclose(at, fidelity.alignment(m, house))
+            assert (np.allclose(at, start, atol=1e-3) if noise == "none"
+                    else not np.allclose(at, start, atol=1e-4))
+        if noise == "none":  # exact odometry: the start frame is the model's own
+            assert off["max"] < 1e-3 and own["precision"] == raw["precision"]
+        else:
+            assert off["max"] > 1e-3
 
 
 class _Starts:

@@ -22,7 +22,12 @@ created it, mapped to the world with ``frame``):
   percentile (m) are reported with the number of states. 0 with a perfect pose sensor and
   exact merges; odometry drift and wrong merge transforms raise it. The stored headings'
   error after the same fit (:func:`residuals`, degrees) beside it: what places the
-  objects a state saw.
+  objects a state saw;
+* **in the map's own frame** (:func:`alignment`, :func:`aligned_frames`): the object scores
+  again with each model placed by that same fit instead of its creating episode's start
+  (where that episode's odometry drifted, the two differ by the drift: a model turned 5°
+  puts every object 10 m from its start 0.9 m off, though each is where the map has it
+  relative to the rest); :func:`frame_error` says how far apart the two frames are.
 
 >>> from kgnav.sim.house import ObjectInstance
 >>> chair = ObjectInstance(1, "chair", 0, 0.0, 0.0, 0.5, 0.5, 0.0, 0.9, (0, 0, 0))
@@ -45,6 +50,7 @@ from kgnav.memory.evidence import DEFAULT_BELIEF, BeliefModel, belief, object_ev
 from kgnav.memory.model import AbstractModel
 
 TOLERANCE = 0.5  # m from a real instance's footprint
+MIN_ALIGNED = 3  # states of known truth a model needs before it is scored in its own frame
 
 
 def score_objects(objects: Iterable[tuple], instances,
@@ -168,27 +174,61 @@ def pooled(per_house: dict[str, dict]) -> dict:
     }
 
 
+def _paired(model: AbstractModel, truth: Mapping[str, tuple]) -> tuple[np.ndarray, np.ndarray]:
+    """The stored (x, y, θ) of ``model``'s states with a known truth, and their true world
+    (x, y, θ) (θ NaN where the truth has none)."""
+    p, q = [], []
+    for sid in model.states():
+        d = model.graph.nodes[sid]
+        t = truth.get(d["origin"].split(" ", 1)[0])
+        if t is not None:
+            p.append((d["x"], d["y"], d["theta"]))
+            q.append((*t[:3], math.nan)[:3])  # NaN: no true heading
+    return np.array(p, np.float64).reshape(-1, 3), np.array(q, np.float64).reshape(-1, 3)
+
+
+def alignment(model: AbstractModel, truth: Mapping[str, tuple],
+              min_states: int = MIN_ALIGNED) -> se2.Pose | None:
+    """The world pose of ``model``'s frame that lays its stored states best on where they
+    truly were: the rigid 2-D fit of :func:`residuals` (``truth`` as there). None with fewer
+    than ``min_states`` states of known truth.
+
+    A map's frame is its creating episode's start only as far as that episode's odometry
+    was right: a few degrees of heading lost in the first turns rotate all the rest, which
+    the memory cannot know and which no use of the memory depends on (every episode is laid
+    on it by its own relocation). Scoring the memory in this frame (as trajectory error is
+    scored after an alignment) says how true the map is in itself; in the start frame, also
+    how far that first episode's odometry drifted.
+
+    >>> from kgnav import AbstractModel
+    >>> m = AbstractModel(2, model_id="h-e000")
+    >>> for k in range(3):
+    ...     _ = m.add_state([1.0, 0.0], (float(k), 0.0, 0.0))
+    >>> truth = {f"h-e000/s{k}": (5.0, 1.0 + k) for k in range(3)}   # turned 90° and moved
+    >>> [round(v, 3) for v in alignment(m, truth)]
+    [5.0, 1.0, 1.571]
+    """
+    p, q = _paired(model, truth)
+    if len(p) < max(min_states, 1):
+        return None
+    return se2.fit_points(p[:, :2], q[:, :2])
+
+
 def residuals(models: Iterable[AbstractModel], truth: Mapping[str, tuple]
               ) -> tuple[np.ndarray, np.ndarray]:
     """The stored states' position residuals (m) and heading residuals (degrees, absolute),
-    each model aligned to the truth by one rigid 2-D fit of its positions. ``truth``: the
-    true world (x, y) or (x, y, θ) of every recorded state, keyed ``model_id/node_id`` (the
-    first entry of a state's ``origin``: its creator); states without one are left out, and
-    from the headings also those whose truth has none. A heading a few degrees off moves
-    everything the state saw sideways by its range times the angle: an object seen from 4 m
-    by a state 5° off lands 0.35 m away, though the state's own position may be exact."""
+    each model aligned to the truth by one rigid 2-D fit of its positions (:func:`alignment`).
+    ``truth``: the true world (x, y) or (x, y, θ) of every recorded state, keyed
+    ``model_id/node_id`` (the first entry of a state's ``origin``: its creator); states
+    without one are left out, and from the headings also those whose truth has none. A
+    heading a few degrees off moves everything the state saw sideways by its range times the
+    angle: an object seen from 4 m by a state 5° off lands 0.35 m away, though the state's
+    own position may be exact."""
     dist, deg = [], []
     for model in models:
-        p, q = [], []
-        for sid in model.states():
-            d = model.graph.nodes[sid]
-            t = truth.get(d["origin"].split(" ", 1)[0])
-            if t is not None:
-                p.append((d["x"], d["y"], d["theta"]))
-                q.append((*t[:3], math.nan)[:3])  # NaN: no true heading
-        if not p:
+        p, q = _paired(model, truth)
+        if not len(p):
             continue
-        p, q = np.array(p, np.float64), np.array(q, np.float64)
         T = se2.fit_points(p[:, :2], q[:, :2])
         dist.append(np.linalg.norm(se2.apply_to_points(T, p[:, :2]) - q[:, :2], axis=1))
         deg.append(np.degrees([se2.angle_diff(a + T[2], b)
@@ -196,6 +236,29 @@ def residuals(models: Iterable[AbstractModel], truth: Mapping[str, tuple]
                                if not math.isnan(b)]))
     return (np.concatenate(dist) if dist else np.zeros(0),
             np.concatenate(deg) if deg else np.zeros(0))
+
+
+def aligned_frames(models: Iterable[tuple[AbstractModel, tuple]], truth: Mapping[str, tuple]
+                   ) -> list[tuple[AbstractModel, tuple]]:
+    """``models`` (each with its start frame) each with its :func:`alignment` instead, where
+    the truth allows one (else the start frame stays)."""
+    out = []
+    for model, frame in models:
+        T = alignment(model, truth)
+        out.append((model, frame if T is None else T))
+    return out
+
+
+def frame_error(model: AbstractModel, frame, aligned) -> dict:
+    """How far a model's start frame is from its :func:`alignment` ``aligned``: the distance
+    (m) between where the two put the model's states' centroid, and the angle (degrees)."""
+    xy = np.array([(model.graph.nodes[s]["x"], model.graph.nodes[s]["y"])
+                   for s in model.states()], np.float64).reshape(-1, 2)
+    c = xy.mean(axis=0) if len(xy) else np.zeros(2)
+    ax, ay = se2.apply_to_point(frame, float(c[0]), float(c[1]))
+    bx, by = se2.apply_to_point(aligned, float(c[0]), float(c[1]))
+    return {"error_m": round(math.hypot(ax - bx, ay - by), 3),
+            "error_deg": round(abs(math.degrees(se2.angle_diff(frame[2], aligned[2]))), 2)}
 
 
 def pose_residuals(models: Iterable[AbstractModel],

@@ -39,9 +39,11 @@ PALETTE = [(230, 25, 75), (60, 120, 216), (245, 130, 48), (145, 30, 180), (0, 13
 
 
 def draw_memory(scene: Scene, models: Sequence[tuple[str, AbstractModel, tuple]],
-                path: str | os.PathLike[str] | None = None, ppm: float = 30.0) -> np.ndarray:
+                path: str | os.PathLike[str] | None = None, ppm: float = 30.0,
+                placed: str | None = None) -> np.ndarray:
     """Draw the objects of ``models`` — (id, model, world pose of its frame) — over ``scene``
-    from above; returns the RGB image and writes a PNG to ``path``."""
+    from above; returns the RGB image and writes a PNG to ``path``. ``placed``: a line saying
+    how the frames were chosen, for the picture's header."""
     img = draw_topdown(scene, labels=False, ppm=ppm).copy()
 
     def px(x, y):
@@ -66,7 +68,7 @@ def draw_memory(scene: Scene, models: Sequence[tuple[str, AbstractModel, tuple]]
              f"{len(objs)} objects, {len(scene.objects)} real",
              f"precision {s['precision']}, trusted {s['trusted_precision']}",
              f"copies {s['copies']}",
-             "disc: real, cross: phantom, large: trusted"]
+             "disc: real, cross: phantom, large: trusted"] + ([placed] if placed else [])
     band = np.full((14 * len(lines) + 6, img.shape[1], 3), 255, np.uint8)
     for i, text in enumerate(lines):
         cv2.putText(band, text, (4, 13 + 14 * i), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (0, 0, 0), 1,
@@ -77,12 +79,21 @@ def draw_memory(scene: Scene, models: Sequence[tuple[str, AbstractModel, tuple]]
     return img
 
 
-def run_memory(run_dir: str | os.PathLike[str], variant: str = "si"):
+FRAMES = ("own", "start")
+_PLACED = {"own": "each model in its own frame (fitted to the truth of its states)",
+           "start": "each model in its creating episode's start frame"}
+
+
+def run_memory(run_dir: str | os.PathLike[str], variant: str = "si", frame: str = "own"):
     """The memory ``variant`` left in a ``kgnav eval`` output directory of kgnav's own
     houses, house by house: a list of ``(scene, [(model id, model, world frame), ...])``
-    (``pre-explored`` for the hp/sp memory). One-line errors (:class:`KgnavError`) for a
-    directory that is no such output, another environment's, or one without that memory."""
-    from kgnav.benchmark.runner import _house_of
+    (``pre-explored`` for the hp/sp memory). ``frame``: ``"own"`` places each model by the
+    fit of its states to where they truly were (:func:`kgnav.benchmark.fidelity.alignment`,
+    from the true poses the run kept beside the memory; a model without them stays in its
+    start frame), ``"start"`` in the start frame of the episode that created it. One-line
+    errors (:class:`KgnavError`) for a directory that is no such output, another
+    environment's, or one without that memory."""
+    from kgnav.benchmark.runner import _house_of, read_truth, truth_path
     from kgnav.memory.store import ModelStore
     from kgnav.sim.sources import scene_source
 
@@ -105,9 +116,14 @@ def run_memory(run_dir: str | os.PathLike[str], variant: str = "si"):
                       if p.is_dir() or p.suffix == ".lbug")
         raise KgnavError(f"{store_dir}: no stored memory for {variant!r} "
                          f"(there: {', '.join(have) or 'none'})")
+    if frame not in FRAMES:
+        raise KgnavError(f"frame must be one of {', '.join(FRAMES)}, got {frame!r}")
     models, problems = ModelStore(store_dir).load_all()
     if problems:
         raise KgnavError(f"{store_dir}: {problems[0]}")
+    truth = {} if frame == "start" else read_truth(
+        run / "memory" / "pre-explored" / "truth.json" if variant == "pre-explored"
+        else truth_path(run, variant))
     houses = []
     for k in range(len(source)):
         scene = source.scene(k)
@@ -118,7 +134,9 @@ def run_memory(run_dir: str | os.PathLike[str], variant: str = "si"):
         framed = []
         for mid, m in mine:
             tag = mid.rpartition("-")[2]
-            framed.append((mid, m, episodes[0 if tag == "pre" else int(tag[1:])].start))
+            start = episodes[0 if tag == "pre" else int(tag[1:])].start
+            own = fidelity.alignment(m, truth.get(scene.name, {}))
+            framed.append((mid, m, start if own is None else own))
         houses.append((scene, framed))
     if models and not houses:
         raise KgnavError(f"{store_dir}: none of its {len(models)} models belongs to a house of "
@@ -127,14 +145,15 @@ def run_memory(run_dir: str | os.PathLike[str], variant: str = "si"):
 
 
 def draw_run(run_dir: str | os.PathLike[str], variant: str = "si",
-             out: str | os.PathLike[str] | None = None, ppm: float = 30.0) -> list[Path]:
+             out: str | os.PathLike[str] | None = None, ppm: float = 30.0,
+             frame: str = "own") -> list[Path]:
     """Draw the memory ``variant`` left in a ``kgnav eval`` output directory, one PNG per
-    house (``pre-explored`` for the hp/sp memory) into ``out`` (default: ``RUN/memory``).
-    Returns the paths written."""
+    house (``pre-explored`` for the hp/sp memory) into ``out`` (default: ``RUN/memory``),
+    each model placed as ``frame`` says (:func:`run_memory`). Returns the paths written."""
     out_dir = Path(out) if out is not None else Path(run_dir) / "memory"
     written = []
-    for scene, framed in run_memory(run_dir, variant):
+    for scene, framed in run_memory(run_dir, variant, frame):
         path = out_dir / f"{variant}_{scene.name}.png"
-        draw_memory(scene, framed, path, ppm)
+        draw_memory(scene, framed, path, ppm, placed=_PLACED[frame])
         written.append(path)
     return written

@@ -406,15 +406,15 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     agent.reset(goal, seed=seed, scene=name, episode=scene * 1000 + episode,
                 model_id=f"{name}-e{episode:03d}")
     gt = _GroundTruth(env, name, episode)
-    held = goal_in_memory(gt, memory, goal)  # scoring only: the agent never sees it
+    house_truth = _ROUND.get("truth", {}).get(name, {})  # scoring only: the agent never sees it
+    held = goal_in_memory(gt, memory, goal, house_truth)
     seen = seen_instances(obs) if variant.learns else set()
     track = variant.learns or memory is not None
     path = [gt.world_pose()] if track else []  # true pose after each step
     if cfg.noise_spec.active:  # with drift, judge relocations by where the agent truly was
         gt.path = path
     done, steps = False, 0
-    tracking = (_Tracking(gt, memory, _ROUND.get("truth", {}).get(name, {}))
-                if memory is not None else None)
+    tracking = _Tracking(gt, memory, house_truth) if memory is not None else None
     while not done:
         action = agent.act(obs)
         if tracking is not None:
@@ -515,18 +515,23 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     return Outcome(record)
 
 
-def goal_in_memory(gt: _GroundTruth, memory: Memory | None, goal: str) -> bool | None:
+def goal_in_memory(gt: _GroundTruth, memory: Memory | None, goal: str,
+                   truth: dict | None = None) -> bool | None:
     """Whether the house's memory (any of its stored models) holds a true instance of the
     goal class: an object of the class that fidelity matching
-    (:func:`kgnav.benchmark.fidelity.holds_true_instance`) maps to a real instance of it.
-    Asked as the episode starts, to split where success is lost; None without a memory, or
-    without the ground truth it needs (``scene_objects``, ``episode_start``)."""
+    (:func:`kgnav.benchmark.fidelity.holds_true_instance`) maps to a real instance of it,
+    each model placed in its own frame (:func:`kgnav.benchmark.fidelity.aligned_frames`,
+    ``truth``: the true poses of the house's stored states) so that a model its creator's
+    drift turned still holds what it holds. Asked as the episode starts, to split where
+    success is lost; None without a memory, or without the ground truth it needs
+    (``scene_objects``, ``episode_start``)."""
     objects = getattr(gt.env, "scene_objects", None)
     if memory is None or objects is None or not hasattr(gt.env, "episode_start"):
         return None
     mine = [(m, frame) for mid, m in sorted(memory.models.items())
             if (frame := _model_frame(gt, mid)) is not None]
-    return fidelity.holds_true_instance(mine, goal, objects())
+    return fidelity.holds_true_instance(fidelity.aligned_frames(mine, truth or {}), goal,
+                                        objects())
 
 
 def _metric(info: dict, key: str) -> float | None:
@@ -929,6 +934,7 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
     if store_dir is not None:  # (both kinds: a memory-map must not find a previous run's)
         for kind in STORES:
             _clear_store(memory_path(out, variant.name, kind))
+        truth_path(out, variant.name).unlink(missing_ok=True)
     store = ModelStore(store_dir) if store_dir is not None else None
     stored: set[str] = set()  # ids of the models written to the store
     bar = _bar(sum(counts.values()), variant.name, progress)
@@ -973,6 +979,8 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
                         o.record.setdefault("joins", []).append(_join_fields(cfg, j))
                     _write(store, stored, models, sorted({j.into for j in joins} & set(models)),
                            [j.model_id for j in joins])
+                if store_dir is not None:  # where the stored states truly are: scoring only
+                    _write_truth(truth_path(out, variant.name), truth)
             for r in range(r0, min(r0 + step, rounds)):  # records and .part, round by round
                 round_records = [o.record for o in outcomes if o.record["episode"] == r]
                 records.extend(round_records)
@@ -991,10 +999,14 @@ def memory_fidelity(cfg: EvalConfig, models: dict[str, AbstractModel],
     ``episode_start``). ``truth``: per house, the true world pose of the recorded states
     (:func:`state_truth`), for ``pose_error_m``: the stored states' position error after a
     rigid fit of each model, per house and pooled over every state of every house, and
-    ``heading_error_deg``: their headings' error after the same fit."""
+    ``heading_error_deg``: their headings' error after the same fit; ``own_frame``: the
+    object scores again with each model placed by that fit (the map's own frame,
+    :func:`kgnav.benchmark.fidelity.alignment`) instead of its creating episode's start, and
+    ``frame_error`` (per house, by model; pooled ``frame_error_m``: median and max over the
+    models) how far apart the two frames are."""
     truth = truth or {}
-    per_house = {}
-    residuals, headings = [], []
+    per_house, aligned = {}, {}
+    residuals, headings, frame_errors = [], [], []
     for k in cfg.scene_indices:
         env = _env(cfg, k)
         objects = getattr(env, "scene_objects", None)
@@ -1006,16 +1018,30 @@ def memory_fidelity(cfg: EvalConfig, models: dict[str, AbstractModel],
                 if _house_of(mid) == name]
         per_house[name] = fidelity.score_memory(mine, objects(), seen.get(name),
                                                 cfg.agent.goals.belief)
-        r, h = fidelity.residuals((m for m, _ in mine), truth.get(name, {}))
+        house_truth = truth.get(name, {})
+        r, h = fidelity.residuals((m for m, _ in mine), house_truth)
         per_house[name]["pose_error_m"] = fidelity.error_summary(r)
         per_house[name]["heading_error_deg"] = fidelity.error_summary(h)
         residuals.append(r)
         headings.append(h)
+        own = fidelity.aligned_frames(mine, house_truth)
+        aligned[name] = fidelity.score_memory(own, objects(), seen.get(name),
+                                              cfg.agent.goals.belief)
+        per_house[name]["own_frame"] = {k: aligned[name][k] for k in OWN_FRAME_KEYS}
+        per_house[name]["frame_error"] = {
+            m.model_id: fidelity.frame_error(m, start, at)
+            for (m, start), (_, at) in zip(mine, own, strict=True) if at is not start}
+        frame_errors += [e["error_m"] for e in per_house[name]["frame_error"].values()]
     pooled = fidelity.pooled(per_house)
     pooled["pose_error_m"] = fidelity.error_summary(
         np.concatenate(residuals) if residuals else ())
     pooled["heading_error_deg"] = fidelity.error_summary(
         np.concatenate(headings) if headings else ())
+    pooled["own_frame"] = {k: fidelity.pooled(aligned)[k] for k in OWN_FRAME_KEYS}
+    pooled["frame_error_m"] = {
+        "median": round(float(np.median(frame_errors)), 3) if frame_errors else None,
+        "max": round(float(np.max(frame_errors)), 3) if frame_errors else None,
+        "models": len(frame_errors)}
     return {"pooled": pooled, "houses": per_house}
 
 
@@ -1082,6 +1108,8 @@ def absorb(models: dict[str, AbstractModel], o: Outcome, forget_below: float = 0
 
 
 STORES = ("directory", "ladybug")
+#: The object scores repeated with each model in its own frame (``own_frame``).
+OWN_FRAME_KEYS = ("objects", "precision", "trusted_precision", "recall", "copies")
 LOCAL_RADIUS = 1.5  # m: the stored states that say where a model has a place
 
 
@@ -1090,6 +1118,32 @@ def memory_path(out: Path, name: str, store: str = "directory") -> Path:
     or the database ``out/memory/NAME.lbug`` (the hp/sp memory: ``pre-explored/`` or
     ``pre-explored/models.lbug``, beside its cache keys)."""
     return out / "memory" / (f"{name}.lbug" if store == "ladybug" else name)
+
+
+def truth_path(out: Path, name: str) -> Path:
+    """Where a run keeps the true world pose of the stored states of variant ``name``'s
+    memory (``out/memory/NAME.truth.json``; the hp/sp memory keeps its own ``truth.json``
+    beside its models): ground truth for scoring the memory afterwards, which the agent never
+    reads."""
+    return out / "memory" / f"{name}.truth.json"
+
+
+def _write_truth(path: Path, truth: dict[str, dict]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_open(path, "w") as f:
+        json.dump({h: {k: [round(float(v), 4) for v in t] for k, t in sorted(tr.items())}
+                   for h, tr in sorted(truth.items())}, f)
+
+
+def read_truth(path: Path) -> dict[str, dict[str, tuple]]:
+    """:func:`truth_path`'s file (or the hp/sp memory's ``truth.json``), per house; empty when
+    there is none or it does not read as one."""
+    try:
+        raw = json.loads(path.read_text(encoding="utf-8"))
+        return {str(h): {str(k): tuple(float(v) for v in t) for k, t in tr.items()}
+                for h, tr in raw.items()}
+    except (OSError, ValueError, AttributeError, TypeError):
+        return {}
 
 
 def _clear_store(path: Path) -> None:
@@ -1141,11 +1195,7 @@ def _pre_explored(cfg: EvalConfig, extractor_name: str, out: Path | None, progre
                 saw = None
             if not problems and len(loaded) == len(cfg.scene_indices) and saw is not None:
                 models, seen, stored = loaded, saw, True
-                try:
-                    truth = {h: {k: tuple(v) for k, v in t.items()} for h, t in
-                             json.loads((store_dir / "truth.json").read_text()).items()}
-                except (OSError, ValueError, AttributeError, TypeError):
-                    truth = {}
+                truth = read_truth(store_dir / "truth.json")
     if not models:
         bar = _bar(len(cfg.scene_indices), "pre-explore", progress)
         try:

@@ -324,6 +324,7 @@ def print_summary(summary: dict) -> None:
                    "wrong merges (bridges, joins; merges vs stored)",
                    "models/house", "objects", "precision (trusted)", "copies", "recall",
                    "pose err. m, heading ° (median / p95)",
+                   "own frame: precision / recall (frames off m, median / max)",
                    title="Relocation and memory fidelity (against ground truth)")
         for name, s in mem.items():
             p = s["memory"]["pooled"]
@@ -340,7 +341,8 @@ def print_summary(summary: dict) -> None:
                 " ".join(f"{k}:{v}" for k, v in p["models_per_house"].items()),
                 str(p["objects"]), f"{_f(p['precision'])} ({_f(p['trusted_precision'])})",
                 _f(p["copies"]), _f(p["recall"]),
-                _pose_error(p.get("pose_error_m"), p.get("heading_error_deg")))
+                _pose_error(p.get("pose_error_m"), p.get("heading_error_deg")),
+                _own_frame(p))
         console.print(t3)
     _print_where_lost(console, summary)
 
@@ -395,6 +397,17 @@ def _pose_error(e: dict | None, heading: dict | None = None) -> str:
     return f"{e['median']:.3f} / {e['p95']:.3f}{h} ({e['states']})"
 
 
+def _own_frame(p: dict) -> str:
+    """The memory scored in each model's own frame, and how far the start frames are off
+    (summaries written before these were scored have neither: a dash)."""
+    own, off = p.get("own_frame"), p.get("frame_error_m")
+    if not own:
+        return "–"
+    far = "" if not off or off.get("median") is None else \
+        f" ({off['median']:.2f} / {off['max']:.2f})"
+    return f"{_f(own['precision'])} / {_f(own['recall'])}{far}"
+
+
 def _f(v, digits: int = 2) -> str:
     """A number, or a dash where it is missing (no ground truth for it)."""
     return "–" if v is None else f"{v:.{digits}f}"
@@ -408,12 +421,16 @@ def _f(v, digits: int = 2) -> str:
               default=None, help="Where the PNGs go [default: RUN_DIR/memory].")
 @click.option("--ppm", type=click.FloatRange(min=2, max=200), default=30.0, show_default=True,
               help="Pixels per metre.")
-def memory_map(run_dir: Path, variant: str, out_dir: Path | None, ppm: float) -> None:
+@click.option("--frame", type=click.Choice(["own", "start"]), default="own", show_default=True,
+              help="Place each model in its own frame (fitted to where its states truly "
+                   "were) or in the start frame of the episode that created it.")
+def memory_map(run_dir: Path, variant: str, out_dir: Path | None, ppm: float,
+               frame: str) -> None:
     """Draw every object the memory of a `kgnav eval` run holds, house by house, over the
     house from above: colour per model, disc for a real object, cross for a phantom."""
     from kgnav.benchmark.memory_map import draw_run
 
-    for path in draw_run(run_dir, variant, out_dir, ppm):
+    for path in draw_run(run_dir, variant, out_dir, ppm, frame):
         click.echo(str(path))
 
 
@@ -425,8 +442,11 @@ def memory_map(run_dir: Path, variant: str, out_dir: Path | None, ppm: float) ->
               help="The share of a class's real objects a floor may leave out.")
 @click.option("--min-views", type=click.IntRange(min=1), default=3, show_default=True,
               help="Judge objects seen from at least this many states (goals.score_views).")
+@click.option("--frame", type=click.Choice(["own", "start"]), default="own", show_default=True,
+              help="Place each model in its own frame (fitted to where its states truly "
+                   "were) or in the start frame of the episode that created it.")
 @click.option("--json", "as_json", is_flag=True, help="Print the table and floors as JSON.")
-def goal_floors(run_dir: Path, variant: str, quantile: float, min_views: int,
+def goal_floors(run_dir: Path, variant: str, quantile: float, min_views: int, frame: str,
                 as_json: bool) -> None:
     """Calibrate goals.remembered_floor on a `kgnav eval` run's memory: the mean detection
     confidence of its real objects and of its phantoms, by class (ground truth), and for each
@@ -436,7 +456,7 @@ def goal_floors(run_dir: Path, variant: str, quantile: float, min_views: int,
     from kgnav.benchmark.memory_map import run_memory
 
     stats: dict = {}
-    for scene, framed in run_memory(run_dir, variant):
+    for scene, framed in run_memory(run_dir, variant, frame):
         part = fidelity.confidence_by_class([(m, f) for _, m, f in framed], scene.objects,
                                             min_views)
         for cls, d in part.items():
