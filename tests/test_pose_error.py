@@ -222,9 +222,9 @@ def test_summary_scores_the_memory_in_its_own_frame_and_keeps_the_truth(run_dirs
         truth = read_truth(truth_path(d, "si"))
         (house,) = truth.values()
         assert len(house) == pooled["pose_error_m"]["states"]
-        (scene, framed), = run_memory(d, "si", "own")
+        (_, framed), = run_memory(d, "si", "own")
         (_, starts), = run_memory(d, "si", "start")
-        for (mid, m, at), (_, _, start) in zip(framed, starts, strict=True):
+        for (_, m, at), (_, _, start) in zip(framed, starts, strict=True):
             assert np.allclose(at, fidelity.alignment(m, house))
             assert (np.allclose(at, start, atol=1e-3) if noise == "none"
                     else not np.allclose(at, start, atol=1e-4))
