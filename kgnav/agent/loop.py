@@ -99,6 +99,8 @@ class AgentConfig:
     seed_map: bool = True  # after a relocation, plan with what the stored model saw
     unknown_speed: float = 0.5  # ... and count space neither it nor the agent saw this much
     # slower than known free space (1: no preference for the way the memory knows)
+    prior_inflation: float | None = None  # m the remembered obstacles grow by for the
+    # agent's centre (None: as much as its own; kgnav.agent.planner.FMMPlanner)
     confirm_distance: float = 2.5  # see an object this close before stopping at it (0: off)
     confirm_steps: int = 8  # turns spent looking for it on arrival before giving it up
     map_size: int = 480  # starting side in cells; the map grows
@@ -122,6 +124,9 @@ class AgentConfig:
             raise ValueError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
         if not 0 < self.unknown_speed <= 1:
             raise ValueError(f"unknown_speed must be in (0, 1], got {self.unknown_speed}")
+        if self.prior_inflation is not None and not self.prior_inflation >= 0:
+            raise ValueError(f"prior_inflation must be None or at least 0 m, "
+                             f"got {self.prior_inflation}")
         if self.detour_ratio < 0 or 0 < self.detour_ratio < 1:
             raise ValueError(f"detour_ratio must be 0 (off) or at least 1, "
                              f"got {self.detour_ratio}")
@@ -257,7 +262,8 @@ class ObjectNavAgent:
                 raise UnknownClassError(cls, self.classes)
         self.planner = planner or FMMPlanner(agent_radius=agent_radius,
                                              turn_tolerance_deg=self._aim_tolerance,
-                                             unknown_speed=self.config.unknown_speed)
+                                             unknown_speed=self.config.unknown_speed,
+                                             prior_inflation=self.config.prior_inflation)
         self.map_builder = MapBuilder(camera, self.config.map_size, self.config.map_resolution,
                                       classes=self.classes)
         self.state_creator = StateCreator(camera, obstacle_band=self.map_builder.obstacle_band)

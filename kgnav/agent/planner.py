@@ -125,7 +125,12 @@ class FMMPlanner:
     steps a distance field is reused; ``lookahead`` is how many cells down the field the
     short-term goal lies; ``turn_tolerance_deg`` is the heading error tolerated before turning;
     ``unknown_speed`` (in (0, 1]) is how fast unseen cells count once the map holds a
-    remembered prior (1: as fast as known free space, the memory-less planner's view).
+    remembered prior (1: as fast as known free space, the memory-less planner's view);
+    ``prior_inflation`` (m; None: as the agent's own obstacles, never more) how far the
+    remembered obstacles grow for the agent's centre: a memory laid on by a relocation and
+    drawn from many episodes' drifting profiles has its walls a little thick and a little off
+    already, and growing them by the full radius again closes doorways the agent fits
+    through.
     """
 
     def __init__(
@@ -137,9 +142,14 @@ class FMMPlanner:
         replan_every: int = 10,
         crop_margin: float = 2.0,
         unknown_speed: float = 1.0,
+        prior_inflation: float | None = None,
     ):
         if not 0 < unknown_speed <= 1:
             raise ValueError(f"unknown_speed must be in (0, 1], got {unknown_speed}")
+        if prior_inflation is not None and not prior_inflation >= 0:
+            raise ValueError(f"prior_inflation must be None or at least 0 m, "
+                             f"got {prior_inflation}")
+        self.prior_inflation = prior_inflation
         self.agent_radius = float(agent_radius)
         self.margin = float(margin)
         self.lookahead = int(lookahead)
@@ -196,14 +206,23 @@ class FMMPlanner:
         remembered model put on the map.
         """
         i0, i1, j0, j1 = crop
-        occ = m.blocked(crop, prior=prior)
-        trav = cv2.dilate(occ, disc(self._inflation(m, squeeze=squeeze, bare=bare))) == 0
+        trav = self._free(m, crop, self._inflation(m, squeeze=squeeze, bare=bare), prior)
         # the agent's own cell and a little around it stay free, or it could never leave
         ai, aj, r = agent[0] - i0, agent[1] - j0, self._PATCH
         trav[max(ai - r, 0):ai + r + 1, max(aj - r, 0):aj + r + 1] = True
         return trav
 
     _PATCH = 2  # cells each side of the agent's own that always count as free
+
+    def _free(self, m: EpisodeMap, crop, k: int, prior: bool = True) -> np.ndarray:
+        """Cells of ``crop`` clear of the obstacles grown by ``k`` cells (the remembered ones,
+        with ``prior``, by at most :attr:`prior_inflation`)."""
+        if not prior or m.prior_obstacle is None or self.prior_inflation is None:
+            return cv2.dilate(m.blocked(crop, prior=prior), disc(k)) == 0
+        kp = min(k, math.ceil(self.prior_inflation / m.resolution - 1e-9))
+        i0, i1, j0, j1 = crop
+        own = cv2.dilate(m.blocked(crop, prior=False), disc(k)) == 0
+        return own & (cv2.dilate(m.prior_obstacle[i0:i1, j0:j1], disc(kp)) == 0)
 
     def _inflation(self, m: EpisodeMap, *, squeeze: bool = False, bare: bool = False) -> int:
         """How many cells obstacles grow by for the agent's centre (see :meth:`traversable`)."""
@@ -225,7 +244,7 @@ class FMMPlanner:
         rows, cols = [p[0] for p in path], [p[1] for p in path]
         w0, w2 = max(min(rows) - k, i0), max(min(cols) - k, j0)
         win = (w0, min(max(rows) + k + 1, i1), w2, min(max(cols) + k + 1, j1))
-        trav = cv2.dilate(m.blocked(win), disc(k)) == 0
+        trav = self._free(m, win, k)
         return any(not trav[i - w0, j - w2] for i, j in path
                    if max(abs(i - agent[0]), abs(j - agent[1])) > self._PATCH)
 

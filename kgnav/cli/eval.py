@@ -60,7 +60,8 @@ def _settings(config_cls, what: str):
 
     def parse(ctx, param, values: tuple[str, ...]) -> dict:
         known = {f.name: f.default for f in fields(config_cls)
-                 if isinstance(f.default, (bool, int, float, str, tuple))}
+                 if isinstance(f.default, (bool, int, float, str, tuple))
+                 or (f.default is None and str(f.type) == "float | None")}
         out: dict = {}
         for item in values:
             key, eq, text = item.partition("=")
@@ -74,7 +75,9 @@ def _settings(config_cls, what: str):
             # a tuple of (name, number) pairs, empty by default, or a fixed-length tuple of numbers
             pairs = isinstance(default, tuple) and (not default or isinstance(default[0], tuple))
             try:
-                if isinstance(default, bool):
+                if default is None:  # an optional number: "none" turns it off
+                    value = None if text.strip().lower() == "none" else float(text)
+                elif isinstance(default, bool):
                     value = click.BOOL.convert(text.strip(), param, ctx)
                 elif pairs:
                     value = tuple(_pair(v) for v in text.split(","))  # NAME:NUMBER,...
@@ -85,7 +88,8 @@ def _settings(config_cls, what: str):
                 else:
                     value = type(default)(text)
             except (ValueError, click.BadParameter):
-                like = "NAME:NUMBER,..." if pairs else repr(default)
+                like = ("NAME:NUMBER,..." if pairs else "a number or none" if default is None
+                        else repr(default))
                 raise click.BadParameter(f"{key} takes a value like {like}, got {text!r}",
                                          ctx, param) from None
             out[key] = value
@@ -106,6 +110,14 @@ def _relocation(ctx, param, values: tuple[str, ...]) -> dict:
     from kgnav.agent.relocation import RelocationConfig
 
     return _settings(RelocationConfig, "relocation")(ctx, param, values)
+
+
+def _agent(ctx, param, values: tuple[str, ...]) -> dict:
+    """``KEY=VALUE`` settings of :class:`~kgnav.agent.loop.AgentConfig` (its own plain
+    fields; relocation and goals have their own options)."""
+    from kgnav.agent.loop import AgentConfig
+
+    return _settings(AgentConfig, "agent")(ctx, param, values)
 
 
 def _goals(ctx, param, values: tuple[str, ...]) -> dict:
@@ -214,6 +226,11 @@ def _noise(ctx, param, value: str | None) -> str | None:
               help="Change one setting of the preset's relocation (RelocationConfig, "
                    "docs/memory.md), e.g. bare_inliers=0 or absence_views=0; repeatable. "
                    "Recorded in config.json.")
+@click.option("--agent", "agent_settings", multiple=True, callback=_agent,
+              metavar="KEY=VALUE",
+              help="Change one setting of the preset's agent (AgentConfig, docs/agent.md), "
+                   "e.g. prior_inflation=0.1 or detour_ratio=3; repeatable. Recorded in "
+                   "config.json.")
 @click.option("--goals", "goals", multiple=True, callback=_goals, metavar="KEY=VALUE",
               help="Change one setting of the preset's choice of a remembered goal "
                    "(GoalConfig, docs/agent.md), e.g. min_score=0.72; repeatable. Recorded "
@@ -228,7 +245,7 @@ def _noise(ctx, param, value: str | None) -> str | None:
 def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, workers, engine,
              address, segmenter, segmenter_weights, allow_domain_mismatch, extractor, threshold,
              encoder_weights, pre_explore_steps, show, noise, drift_correction, consolidate, preset,
-             policy, relocation, goals, seed, store, quiet) -> None:
+             policy, relocation, agent_settings, goals, seed, store, quiet) -> None:
     """Run agent variants over a split; write episodes.jsonl, summary.json and plots."""
     from kgnav.agent.loop import PRESETS
     from kgnav.agent.policy import make_policy, policy_names
@@ -264,6 +281,11 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
     from kgnav.benchmark.runner import EvalConfig, run_eval
 
     agent = PRESETS[preset]()
+    if agent_settings:
+        try:
+            agent = replace(agent, **agent_settings)
+        except ValueError as exc:  # a value of the right type that AgentConfig refuses
+            raise click.BadParameter(str(exc), param_hint="--agent") from None
     if relocation:
         agent = replace(agent, relocation=replace(agent.relocation, **relocation))
     if goals:
