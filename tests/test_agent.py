@@ -154,6 +154,31 @@ def test_planner_avoids_bumped_cells():
     assert plan.action in ("turn_left", "turn_right")  # straight ahead is now blocked
 
 
+def test_prior_inflation_opens_a_doorway_the_remembered_walls_close():
+    """A remembered wall across the way with a 0.5 m doorway (10 cells) and an open end far
+    off: grown by the agent's full 0.23 m the doorway closes and the plan goes round the end;
+    grown by 0.1 m it stays open and the plan goes through it. The agent's own obstacles
+    always grow by the full radius."""
+    m = MapBuilder(Camera(), size=160).reset()
+    goal = np.zeros(m.shape, bool)
+    goal[80, 120] = True  # 2 m ahead of the start (cell 80, 80)
+    wall = np.zeros(m.shape, np.uint8)
+    wall[60:160, 100] = 1  # x = +1 m, from the map's edge to 1 m beside the start's row
+    wall[75:85, 100] = 0  # the doorway, straight ahead
+    m.prior_obstacle, m.prior_explored = wall, np.zeros_like(wall)
+    full = FMMPlanner().plan(m, (0.0, 0.0, 0.0), goal, key="g")
+    thin = FMMPlanner(prior_inflation=0.1).plan(m, (0.0, 0.0, 0.0), goal, key="g")
+    assert thin.distance < 2.3 < 2.8 < full.distance  # round the wall's end: over 3 m
+    m.prior_obstacle = np.zeros_like(wall)
+    m.obstacle[:] = wall  # the same wall seen by the agent itself: no way through
+    assert FMMPlanner(prior_inflation=0.1).plan(m, (0.0, 0.0, 0.0), goal, key="g"
+                                                ).distance > 2.8
+    with pytest.raises(ValueError, match="prior_inflation"):
+        FMMPlanner(prior_inflation=-0.1)
+    with pytest.raises(ValueError, match="prior_inflation"):
+        AgentConfig(prior_inflation=-1.0)
+
+
 def test_frontier_policy_picks_frontiers_and_gives_up_when_closed():
     m = MapBuilder(Camera(), size=100).reset()
     m.explored[30:70, 30:70] = 1

@@ -238,6 +238,26 @@ def test_eval_relocation_option(tmp_path, cli):
         assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
 
 
+def test_eval_agent_option(tmp_path, cli):
+    """--agent KEY=VALUE changes the preset's AgentConfig (recorded in config.json); an
+    optional number takes 'none'; an unknown setting, a value of the wrong kind or one
+    AgentConfig refuses is a one-line usage error."""
+    code, out, err = cli("eval", "--split", "val-small", "--variants", "oracle", "--scenes", "1",
+                         "--episodes", "1", "--agent", "prior_inflation=0.1",
+                         "--agent", "weak_score=none", "--agent", "detour_ratio=3",
+                         "--out", tmp_path / "r", "--quiet")
+    assert code == 0, err
+    agent = json.loads((tmp_path / "r" / "config.json").read_text())["agent"]
+    assert agent["prior_inflation"] == 0.1 and agent["weak_score"] is None
+    assert agent["detour_ratio"] == 3.0
+    for arg, needle in (("prior_inflashun=1", "unknown agent setting 'prior_inflashun'"),
+                        ("prior_inflation=wide", "prior_inflation takes a value like a number"),
+                        ("prior_inflation=-1", "prior_inflation must be None or at least 0"),
+                        ("detour_ratio=0.5", "detour_ratio must be 0 (off) or at least 1")):
+        code, out, err = cli("eval", "--agent", arg, "--out", tmp_path / "m")
+        assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
+
+
 def test_eval_goals_per_class_floor(tmp_path, cli):
     """--goals remembered_floor=CLASS:FLOOR,... is parsed into pairs and recorded; a malformed
     pair, a floor out of range, or a class the environment does not have is one line."""
