@@ -217,6 +217,37 @@ def test_a_drifting_episode_is_bent_onto_the_stored_model():
     assert np.median(after) < 0.1 and np.percentile(after, 95) < 0.5 * np.percentile(before, 95)
 
 
+def test_a_drifting_episode_that_never_relocated_is_bent_onto_its_late_match():
+    """The same drifting drive, but nothing matched while it drove: only the late match at the
+    end (the whole episode's feature matches) finds the stored model, and no one transform
+    lays the episode on it. With ``late_bend`` the episode is bent by its loop closures,
+    verified again and merged; without, it is refused and stored apart."""
+    truth = tour(2)
+    odo = _odometry(truth, math.radians(0.6))
+    made = {}
+    for late_bend in (False, True):
+        memory = Memory({"a-e000": _stored()}, threshold=0.05)
+        rel = Relocalizer(memory, RelocationConfig(drift=DriftModel(), late_bend=late_bend))
+        episode = AbstractModel(DIM, model_id="a-e001", extractor="toy", scan=SCAN)
+        for k, (p, w) in enumerate(zip(odo, truth, strict=True)):
+            s = AbstractState(NO_MATCH, p, (), cast(ROOM_A, w))
+            episode.add_state(unit(k) if k < 6 else NO_MATCH, p, (), step=k, ranges=s.ranges)
+            rel.observe(k, s, SCAN)
+        assert rel.relocation is None
+        made[late_bend] = (rel.mergeable(episode), rel)
+    r, rel = made[False]
+    assert r is None and rel.correction is None
+    assert sum(v for k, v in rel.decisions.items() if k.startswith("episode match refused")) >= 1
+    r, rel = made[True]
+    assert r is not None and r.late and r.model_id == "a-e000" and rel.correction is not None
+    assert rel.decisions["late match"] == 1 and rel.decisions["merged after loop closures"] == 1
+    poses = rel.corrected_poses(episode, r.transform)
+    states = sorted(episode.states(), key=lambda s: episode.graph.nodes[s]["step"])
+    true = [truth[episode.graph.nodes[s]["step"]] for s in states]
+    after = _errors([se2.compose(r.transform, poses[s]) for s in states], true)
+    assert np.median(after) < 0.1
+
+
 def test_without_a_drift_model_the_episode_stays_rigid():
     _, episode, rel = _drive(math.radians(0.6), None)
     rel.mergeable(episode)

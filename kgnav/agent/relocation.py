@@ -73,6 +73,8 @@ class RelocationConfig:
     late_match: bool = True  # at the end, look for the models the whole episode fits (a merge
     # for an episode that never relocated, bridges for one that did)
     late_hypotheses: int = 2  # transforms judged per model (the most voted by feature matches)
+    late_bend: bool = False  # with a drift model, a late match that no single transform lays
+    # on the model gets the relocated merge's second chance: bent by its loop closures
     merge_objects: int = 3  # before merging, the episode's objects (seen twice) mapped near
     # stored ones must mostly find their class there, once at least this many can be checked
     # ... and with fewer to check, the walls alone must fit the whole episode this well: rooms
@@ -627,11 +629,19 @@ class Relocalizer:
             for mid, Ts in self._episode_hypotheses(episode, refused).items():
                 hyps.setdefault(mid, []).extend(Ts)
         found: dict[str, Verdict] = {}
+        bent: dict[str, tuple[Verdict, Correction]] = {}  # late matches made by bending
+        tried: set[str] = set()
         for mid, Ts in sorted(hyps.items()):
             if r is not None and mid == r.model_id:
                 continue
             for T in Ts:
                 v = self._episode_verdict(mid, T, scans, episode)
+                if (not v.ok and r is None and c.late_bend and c.drift is not None
+                        and v.reason in ("geometry", "conflict") and mid not in tried):
+                    tried.add(mid)  # one bend per model: it costs a pose graph
+                    v = self._bent_verdict(mid, T, v, episode)
+                    if v.ok:
+                        bent[mid], self.correction = (v, self.correction), None
                 if not v.ok:
                     self.decisions[f"episode match refused: {v.reason}"] += 1
                 elif mid not in found or _margin(v) > _margin(found[mid]):
@@ -648,6 +658,9 @@ class Relocalizer:
                                        conflicts=round(v.conflicts, 3), points=v.points,
                                        late=True)
             self.decisions["late match"] += 1
+            # bent onto that model, the bend is the merge's (a rigid late match is bent below)
+            if mid in bent and bent[mid][0] is v:
+                self.correction = bent[mid][1]
         self.bridges = found if r is not None else {}
         if r is not None and c.drift is not None and self.correction is None:
             self.correction = self.close_loops(r.model_id, r.transform)
