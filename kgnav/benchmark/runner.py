@@ -1027,7 +1027,7 @@ def memory_fidelity(cfg: EvalConfig, models: dict[str, AbstractModel],
         own = fidelity.aligned_frames(mine, house_truth)
         aligned[name] = fidelity.score_memory(own, objects(), seen.get(name),
                                               cfg.agent.goals.belief)
-        per_house[name]["own_frame"] = {k: aligned[name][k] for k in OWN_FRAME_KEYS}
+        per_house[name]["own_frame"] = {key: aligned[name][key] for key in OWN_FRAME_KEYS}
         per_house[name]["frame_error"] = {
             m.model_id: fidelity.frame_error(m, start, at)
             for (m, start), (_, at) in zip(mine, own, strict=True) if at is not start}
@@ -1037,7 +1037,8 @@ def memory_fidelity(cfg: EvalConfig, models: dict[str, AbstractModel],
         np.concatenate(residuals) if residuals else ())
     pooled["heading_error_deg"] = fidelity.error_summary(
         np.concatenate(headings) if headings else ())
-    pooled["own_frame"] = {k: fidelity.pooled(aligned)[k] for k in OWN_FRAME_KEYS}
+    own_pooled = fidelity.pooled(aligned)
+    pooled["own_frame"] = {key: own_pooled[key] for key in OWN_FRAME_KEYS}
     pooled["frame_error_m"] = {
         "median": round(float(np.median(frame_errors)), 3) if frame_errors else None,
         "max": round(float(np.max(frame_errors)), 3) if frame_errors else None,
