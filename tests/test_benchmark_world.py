@@ -252,7 +252,8 @@ def test_eval_agent_option(tmp_path, cli):
     assert agent["detour_ratio"] == 3.0
     for arg, needle in (("prior_inflashun=1", "unknown agent setting 'prior_inflashun'"),
                         ("prior_inflation=wide", "prior_inflation takes a value like a number"),
-                        ("prior_inflation=-1", "prior_inflation must be None or at least 0"),
+                        ("prior_inflation=-1", "prior_inflation must be None or a finite length"),
+                        ("prior_inflation=inf", "prior_inflation must be None or a finite length"),
                         ("detour_ratio=0.5", "detour_ratio must be 0 (off) or at least 1")):
         code, out, err = cli("eval", "--agent", arg, "--out", tmp_path / "m")
         assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err

@@ -124,8 +124,8 @@ class AgentConfig:
             raise ValueError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
         if not 0 < self.unknown_speed <= 1:
             raise ValueError(f"unknown_speed must be in (0, 1], got {self.unknown_speed}")
-        if self.prior_inflation is not None and not self.prior_inflation >= 0:
-            raise ValueError(f"prior_inflation must be None or at least 0 m, "
+        if self.prior_inflation is not None and not 0 <= self.prior_inflation < math.inf:
+            raise ValueError(f"prior_inflation must be None or a finite length >= 0 m, "
                              f"got {self.prior_inflation}")
         if self.detour_ratio < 0 or 0 < self.detour_ratio < 1:
             raise ValueError(f"detour_ratio must be 0 (off) or at least 1, "

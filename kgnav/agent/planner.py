@@ -146,8 +146,8 @@ class FMMPlanner:
     ):
         if not 0 < unknown_speed <= 1:
             raise ValueError(f"unknown_speed must be in (0, 1], got {unknown_speed}")
-        if prior_inflation is not None and not prior_inflation >= 0:
-            raise ValueError(f"prior_inflation must be None or at least 0 m, "
+        if prior_inflation is not None and not 0 <= prior_inflation < math.inf:
+            raise ValueError(f"prior_inflation must be None or a finite length >= 0 m, "
                              f"got {prior_inflation}")
         self.prior_inflation = prior_inflation
         self.agent_radius = float(agent_radius)
