@@ -93,7 +93,7 @@ def run_memory(run_dir: str | os.PathLike[str], variant: str = "si", frame: str 
     start frame), ``"start"`` in the start frame of the episode that created it. One-line
     errors (:class:`KgnavError`) for a directory that is no such output, another
     environment's, or one without that memory."""
-    from kgnav.benchmark.runner import _house_of, read_truth, truth_path
+    from kgnav.benchmark.runner import _house_of
     from kgnav.memory.store import ModelStore
     from kgnav.sim.sources import scene_source
 
@@ -121,9 +121,7 @@ def run_memory(run_dir: str | os.PathLike[str], variant: str = "si", frame: str 
     models, problems = ModelStore(store_dir).load_all()
     if problems:
         raise KgnavError(f"{store_dir}: {problems[0]}")
-    truth = {} if frame == "start" else read_truth(
-        run / "memory" / "pre-explored" / "truth.json" if variant == "pre-explored"
-        else truth_path(run, variant))
+    truth = {} if frame == "start" else _truth(run, variant)
     houses = []
     for k in range(len(source)):
         scene = source.scene(k)
@@ -144,6 +142,15 @@ def run_memory(run_dir: str | os.PathLike[str], variant: str = "si", frame: str 
     return houses
 
 
+def _truth(run: Path, variant: str) -> dict:
+    """The true poses of the stored states a run kept beside ``variant``'s memory (empty for
+    a run made before they were kept)."""
+    from kgnav.benchmark.runner import read_truth, truth_path
+
+    return read_truth(run / "memory" / "pre-explored" / "truth.json"
+                      if variant == "pre-explored" else truth_path(run, variant))
+
+
 def draw_run(run_dir: str | os.PathLike[str], variant: str = "si",
              out: str | os.PathLike[str] | None = None, ppm: float = 30.0,
              frame: str = "own") -> list[Path]:
@@ -152,8 +159,11 @@ def draw_run(run_dir: str | os.PathLike[str], variant: str = "si",
     each model placed as ``frame`` says (:func:`run_memory`). Returns the paths written."""
     out_dir = Path(out) if out is not None else Path(run_dir) / "memory"
     written = []
+    placed = _PLACED[frame]
+    if frame == "own" and not _truth(Path(run_dir), variant):
+        placed = _PLACED["start"] + " (the run kept no true poses)"
     for scene, framed in run_memory(run_dir, variant, frame):
         path = out_dir / f"{variant}_{scene.name}.png"
-        draw_memory(scene, framed, path, ppm, placed=_PLACED[frame])
+        draw_memory(scene, framed, path, ppm, placed=placed)
         written.append(path)
     return written
