@@ -229,12 +229,19 @@ def test_eval_relocation_option(tmp_path, cli):
         "min_score"] == 0.7
     code, out, err = cli("eval", "--goals", "min_scor=1", "--out", tmp_path / "m")
     assert code == 2 and "unknown goal setting 'min_scor'" in err
-    for arg, needle in (("frobs=1", "unknown relocation setting 'frobs'"),
-                        ("bare_inliers=high", "bare_inliers takes a value like 0.9"),
-                        ("max_correction=1", "max_correction takes a value like (1.0, 20.0)"),
-                        ("unique=maybe", "unique takes a value like True"),
-                        ("top_k", "expected KEY=VALUE")):
-        code, out, err = cli("eval", "--relocation", arg, "--out", tmp_path / "m")
+    _one_line_usage_errors(cli, tmp_path, "--relocation", (
+        ("frobs=1", "unknown relocation setting 'frobs'"),
+        ("bare_inliers=high", "bare_inliers takes a value like 0.9"),
+        ("max_correction=1", "max_correction takes a value like (1.0, 20.0)"),
+        ("unique=maybe", "unique takes a value like True"),
+        ("top_k", "expected KEY=VALUE")))
+
+
+def _one_line_usage_errors(cli, tmp_path, option: str, cases) -> None:
+    """Each ``(value, needle)`` of ``cases`` given to ``kgnav eval OPTION value`` is a usage
+    error (exit 2) of one line that says ``needle``."""
+    for arg, needle in cases:
+        code, out, err = cli("eval", option, arg, "--out", tmp_path / "m")
         assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
 
 
@@ -250,13 +257,12 @@ def test_eval_agent_option(tmp_path, cli):
     agent = json.loads((tmp_path / "r" / "config.json").read_text())["agent"]
     assert agent["prior_inflation"] == 0.1 and agent["weak_score"] is None
     assert agent["detour_ratio"] == 3.0
-    for arg, needle in (("prior_inflashun=1", "unknown agent setting 'prior_inflashun'"),
-                        ("prior_inflation=wide", "prior_inflation takes a value like a number"),
-                        ("prior_inflation=-1", "prior_inflation must be None or a finite length"),
-                        ("prior_inflation=inf", "prior_inflation must be None or a finite length"),
-                        ("detour_ratio=0.5", "detour_ratio must be 0 (off) or at least 1")):
-        code, out, err = cli("eval", "--agent", arg, "--out", tmp_path / "m")
-        assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
+    _one_line_usage_errors(cli, tmp_path, "--agent", (
+        ("prior_inflashun=1", "unknown agent setting 'prior_inflashun'"),
+        ("prior_inflation=wide", "prior_inflation takes a value like a number"),
+        ("prior_inflation=-1", "prior_inflation must be None or a finite length"),
+        ("prior_inflation=inf", "prior_inflation must be None or a finite length"),
+        ("detour_ratio=0.5", "detour_ratio must be 0 (off) or at least 1")))
 
 
 def test_eval_goals_per_class_floor(tmp_path, cli):
@@ -268,11 +274,10 @@ def test_eval_goals_per_class_floor(tmp_path, cli):
     assert code == 0, err
     goals = json.loads((tmp_path / "r" / "config.json").read_text())["agent"]["goals"]
     assert goals["remembered_floor"] == [["sofa", 0.78], ["bed", 0.85]]
-    for arg, needle in (("remembered_floor=sofa=0.7", "NAME:NUMBER"),
-                        ("remembered_floor=sofa:high", "NAME:NUMBER"),
-                        ("remembered_floor=sofa:1.5", "remembered_floor must give")):
-        code, out, err = cli("eval", "--goals", arg, "--out", tmp_path / "m")
-        assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
+    _one_line_usage_errors(cli, tmp_path, "--goals", (
+        ("remembered_floor=sofa=0.7", "NAME:NUMBER"),
+        ("remembered_floor=sofa:high", "NAME:NUMBER"),
+        ("remembered_floor=sofa:1.5", "remembered_floor must give")))
     code, out, err = cli("eval", "--split", "val-small", "--variants", "oracle", "--scenes", "1",
                          "--episodes", "1", "--goals", "remembered_floor=unicorn:0.5",
                          "--out", tmp_path / "u", "--quiet")

@@ -93,6 +93,12 @@ def run_memory(run_dir: str | os.PathLike[str], variant: str = "si", frame: str 
     start frame), ``"start"`` in the start frame of the episode that created it. One-line
     errors (:class:`KgnavError`) for a directory that is no such output, another
     environment's, or one without that memory."""
+    return _run_memory(run_dir, variant, frame)[0]
+
+
+def _run_memory(run_dir: str | os.PathLike[str], variant: str, frame: str):
+    """:func:`run_memory`, and whether the models were placed by kept true poses (False in
+    the start frame, or for a run that kept none)."""
     from kgnav.benchmark.runner import _house_of
     from kgnav.memory.store import ModelStore
     from kgnav.sim.sources import scene_source
@@ -129,17 +135,15 @@ def run_memory(run_dir: str | os.PathLike[str], variant: str = "si", frame: str 
         if not mine:
             continue
         episodes = source.episodes(k, cfg.get("episodes"))
-        framed = []
-        for mid, m in mine:
-            tag = mid.rpartition("-")[2]
-            start = episodes[0 if tag == "pre" else int(tag[1:])].start
-            own = fidelity.alignment(m, truth.get(scene.name, {}))
-            framed.append((mid, m, start if own is None else own))
-        houses.append((scene, framed))
+        starts = [(m, episodes[0 if (tag := mid.rpartition("-")[2]) == "pre"
+                                 else int(tag[1:])].start) for mid, m in mine]
+        placed = fidelity.aligned_frames(starts, truth.get(scene.name, {}))
+        houses.append((scene, [(mid, m, at) for (mid, _), (m, at) in
+                               zip(mine, placed, strict=True)]))
     if models and not houses:
         raise KgnavError(f"{store_dir}: none of its {len(models)} models belongs to a house of "
                          f"split {cfg['split']!r}")
-    return houses
+    return houses, bool(truth)
 
 
 def _truth(run: Path, variant: str) -> dict:
@@ -159,10 +163,10 @@ def draw_run(run_dir: str | os.PathLike[str], variant: str = "si",
     each model placed as ``frame`` says (:func:`run_memory`). Returns the paths written."""
     out_dir = Path(out) if out is not None else Path(run_dir) / "memory"
     written = []
-    placed = _PLACED[frame]
-    if frame == "own" and not _truth(Path(run_dir), variant):
-        placed = _PLACED["start"] + " (the run kept no true poses)"
-    for scene, framed in run_memory(run_dir, variant, frame):
+    houses, kept = _run_memory(run_dir, variant, frame)
+    placed = _PLACED[frame] if kept or frame == "start" else \
+        _PLACED["start"] + " (the run kept no true poses)"
+    for scene, framed in houses:
         path = out_dir / f"{variant}_{scene.name}.png"
         draw_memory(scene, framed, path, ppm, placed=placed)
         written.append(path)
