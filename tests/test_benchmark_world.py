@@ -216,7 +216,8 @@ def test_eval_noise_option(tmp_path, cli):
 
 def test_eval_relocation_option(tmp_path, cli):
     """--relocation KEY=VALUE changes the preset's RelocationConfig (recorded in config.json);
-    a setting it does not have, or a value of the wrong kind, is a one-line usage error."""
+    a setting it does not have, a value of the wrong kind or one it refuses is a one-line
+    usage error."""
     code, out, err = cli("eval", "--split", "val-small", "--variants", "oracle", "--scenes", "1",
                          "--episodes", "1", "--relocation", "bare_inliers=0.5",
                          "--relocation", "unique=off", "--relocation", "max_correction=2,30",
@@ -234,6 +235,7 @@ def test_eval_relocation_option(tmp_path, cli):
         ("bare_inliers=high", "bare_inliers takes a value like 0.9"),
         ("max_correction=1", "max_correction takes a value like (1.0, 20.0)"),
         ("unique=maybe", "unique takes a value like True"),
+        ("absent_if=nothing", "absent_if must be one of ('empty', 'class')"),
         ("top_k", "expected KEY=VALUE")))
 
 

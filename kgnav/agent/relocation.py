@@ -38,6 +38,9 @@ from kgnav.memory.geometry import OccupancyGrid, occupancy_from_scans
 from kgnav.memory.posegraph import Anchor, Correction, DriftModel, correct, travelled
 
 _START = "episode start"  # the anchor holding an episode corrected on itself in its frame
+#: What the other side must lack near an object for it to be absent
+#: (:attr:`RelocationConfig.absent_if`): any object, or one of the object's class.
+ABSENT_IF = ("empty", "class")
 
 
 @dataclass(frozen=True)
@@ -83,13 +86,18 @@ class RelocationConfig:
     bare_inliers: float = 0.9
     # evidence of absence before merging: an object seen twice by one side (the episode or the
     # stored model) where the other side looked at it from at least this many states (within
-    # MISS_RANGE, in view, unoccluded) and has nothing of its class within landmark_radius
-    # counts against the alignment (0: off) ...
+    # MISS_RANGE, in view, unoccluded) and has nothing within landmark_radius counts against
+    # the alignment (0: off) ...
     absence_views: int = 3
     # ... and the merge is refused when at least this many objects are absent so and they
     # outnumber the episode's objects that found their class (a room of the same shape in
     # another house: its furniture stands elsewhere, where the memory saw the floor empty)
     absent_objects: int = 2
+    # what "nothing" is: "empty", no object of any class (the other side saw the floor
+    # there); "class", none of the object's class, so that a segmenter's confusion (a
+    # bookshelf one side calls a lamp) counts as absence too, which on kgnav's train houses
+    # undid right relocations; the class check (merge_objects) already weighs confusions
+    absent_if: str = "empty"
     # the odometry's drift (kgnav.memory.posegraph.DriftModel): before merging, stretches of the
     # episode verified on their own become loop closures that bend its poses onto the model
     # (None: odometry trusted as exact, one rigid transform, as without noise)
@@ -115,6 +123,10 @@ class RelocationConfig:
     # pin the folded model's turn worse than the rigid fit of the whole model does
     join_link_span: float = 3.0
     joint: bool = True  # re-optimise the stored model at each merge (with a drift model)
+
+    def __post_init__(self):
+        if self.absent_if not in ABSENT_IF:
+            raise ValueError(f"absent_if must be one of {ABSENT_IF}, got {self.absent_if!r}")
 
 
 @dataclass
@@ -495,9 +507,10 @@ class Relocalizer:
         """How many objects seen at least twice, by the ``episode`` or by stored model
         ``model_id`` (the episode's mapped by ``T``), lie where the other side had them in view
         from at least ``absence_views`` states within :data:`MISS_RANGE` and knows no object
-        of their class within ``landmark_radius``: evidence that ``T`` is wrong, strongest in
-        look-alike rooms of another house, whose walls fit but whose furniture stands
-        elsewhere. A phantom seen twice counts too, hence the comparison with the support in
+        within ``landmark_radius`` (with ``absent_if="class"``: none of their class): evidence
+        that ``T`` is wrong, strongest in look-alike rooms of another house, whose walls fit
+        but whose furniture stands elsewhere. A phantom seen twice where the other side saw
+        the floor empty counts too, hence the comparison with the support in
         :meth:`_object_verdict`."""
         stored = self.memory.model(model_id)
         if stored is None or stored.scan is None or episode.scan is None:
@@ -512,19 +525,25 @@ class Relocalizer:
     def _absent_from(self, model, T, other, table: ScanTable) -> int:
         """How many of ``model``'s objects seen at least twice, mapped by ``T`` into
         ``other``, lie where ``other`` had them in view (``table``) from at least
-        ``absence_views`` states and knows no object of their class within
-        ``landmark_radius``."""
+        ``absence_views`` states and knows no object (``absent_if="class"``: none of
+        their class) within ``landmark_radius``."""
         c = self.config
         if not len(table):
             return 0
         n = model.graph.nodes
+        on = other.graph.nodes
+        there = np.array([(on[q]["x"], on[q]["y"]) for q in other.objects()],
+                         np.float64).reshape(-1, 2)
         count = 0
         for o in model.objects():
             d = n[o]
             if d.get("n_views", 1) < 2:
                 continue
             x, y = se2.apply_to_point(T, d["x"], d["y"])
-            if other.nearest_object(d["cls"], x, y, c.landmark_radius) is not None:
+            if c.absent_if == "class":
+                if other.nearest_object(d["cls"], x, y, c.landmark_radius) is not None:
+                    continue
+            elif (np.hypot(there[:, 0] - x, there[:, 1] - y) <= c.landmark_radius).any():
                 continue
             if len(table.covering(x, y, MISS_RANGE)) >= c.absence_views:
                 count += 1

@@ -287,7 +287,10 @@ def eval_cmd(env_name, split, scenes_dir, variants, out_dir, scenes, episodes, w
         except ValueError as exc:  # a value of the right type that AgentConfig refuses
             raise click.BadParameter(str(exc), param_hint="--agent") from None
     if relocation:
-        agent = replace(agent, relocation=replace(agent.relocation, **relocation))
+        try:
+            agent = replace(agent, relocation=replace(agent.relocation, **relocation))
+        except ValueError as exc:  # a value of the right type that RelocationConfig refuses
+            raise click.BadParameter(str(exc), param_hint="--relocation") from None
     if goals:
         try:
             agent = replace(agent, goals=replace(agent.goals, **goals))
