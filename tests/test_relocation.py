@@ -402,13 +402,13 @@ def test_furniture_where_the_memory_saw_the_floor_empty_is_evidence_of_absence()
             assert (checked, supported, absent) == (2, 2, 0)
             assert rel.mergeable(episode) is not None
             continue
-        # too few land near a stored object for the class check; absent: the episode's chair
-        # and the memory's bed (the episode's bed lands 1.2 m from the memory's chair: the
-        # memory saw something there, so neither of those two counts) ...
-        assert checked < RelocationConfig().merge_objects and supported == 0 and absent == 2
-        # ... and all four when a place holding another class counts as empty
-        by_class = Relocalizer(memory, RelocationConfig(verify_checks=0, absent_if="class"))
-        assert by_class.object_absence(episode, "a-e000", T_true) == 4
+        # too few land near a stored object for the class check; absent: two of the
+        # episode's objects and two of the memory's ...
+        assert checked < RelocationConfig().merge_objects and supported == 0 and absent == 4
+        # ... and with absent_if="empty" only the episode's chair and the memory's bed: the
+        # episode's bed lands 1.2 m from the memory's chair, so each side saw something there
+        empty = Relocalizer(memory, RelocationConfig(verify_checks=0, absent_if="empty"))
+        assert empty.object_absence(episode, "a-e000", T_true) == 2
         assert rel.mergeable(episode) is None
         assert rel.decisions["merge refused: objects absent"] == 1
         off = Relocalizer(memory, RelocationConfig(verify_checks=0, absence_views=0))
@@ -446,10 +446,10 @@ def test_a_relocation_is_undone_when_its_objects_are_absent(elsewhere):
 @pytest.mark.parametrize("absent_if", ["empty", "class"])
 def test_a_confusion_where_the_memory_has_furniture_is_no_absence(absent_if):
     """The right relocation, but the segmenter names the furniture differently from the
-    memory (its chair a stool, its bed a sofa, as a segmenter's confusions do): the memory saw
-    furniture right there, which is no evidence that the alignment is wrong, and the standing
-    relocation stays. Counting a place holding another class as empty (``absent_if="class"``)
-    undoes it, as it undid right relocations on kgnav's train houses."""
+    memory (its chair a stool, its bed a sofa, as a segmenter's confusions do). With
+    ``absent_if="empty"`` the memory saw furniture right there, no evidence that the alignment
+    is wrong, and the standing relocation stays; with the default ``"class"`` the confusions
+    are absences and undo it (as they undid right relocations on kgnav's train houses)."""
     chair, bed = Detection("chair", (3.0, 1.0, 0.5)), Detection("bed", (1.5, 1.5, 0.5))
     memory = Memory({"a-e000": stored_model(objects=(chair, bed))}, threshold=0.05)
     T_true = (2.0, -1.0, 0.7)

@@ -86,18 +86,20 @@ class RelocationConfig:
     bare_inliers: float = 0.9
     # evidence of absence before merging: an object seen twice by one side (the episode or the
     # stored model) where the other side looked at it from at least this many states (within
-    # MISS_RANGE, in view, unoccluded) and has nothing within landmark_radius counts against
-    # the alignment (0: off) ...
+    # MISS_RANGE, in view, unoccluded) and has nothing of its class (absent_if) within
+    # landmark_radius counts against the alignment (0: off) ...
     absence_views: int = 3
     # ... and the merge is refused when at least this many objects are absent so and they
     # outnumber the episode's objects that found their class (a room of the same shape in
     # another house: its furniture stands elsewhere, where the memory saw the floor empty)
     absent_objects: int = 2
-    # what "nothing" is: "empty", no object of any class (the other side saw the floor
-    # there); "class", none of the object's class, so that a segmenter's confusion (a
-    # bookshelf one side calls a lamp) counts as absence too, which on kgnav's train houses
-    # undid right relocations; the class check (merge_objects) already weighs confusions
-    absent_if: str = "empty"
+    # what "nothing" is: "class", none of the object's class, so a segmenter's confusion (a
+    # bookshelf one side calls a lamp) counts too; "empty", no object of any class (the other
+    # side saw the floor there). "empty" spared right relocations undone by confusions on
+    # kgnav's train houses (2 of 120 episodes, no success changed) but let 5 wrong merges and
+    # 2 wrong bridges through on MiniWorld's calib houses (none with "class"): in small rooms
+    # another house's furniture often stands near something of another class
+    absent_if: str = "class"
     # the odometry's drift (kgnav.memory.posegraph.DriftModel): before merging, stretches of the
     # episode verified on their own become loop closures that bend its poses onto the model
     # (None: odometry trusted as exact, one rigid transform, as without noise)
@@ -507,11 +509,10 @@ class Relocalizer:
         """How many objects seen at least twice, by the ``episode`` or by stored model
         ``model_id`` (the episode's mapped by ``T``), lie where the other side had them in view
         from at least ``absence_views`` states within :data:`MISS_RANGE` and knows no object
-        within ``landmark_radius`` (with ``absent_if="class"``: none of their class): evidence
+        of their class within ``landmark_radius`` (``absent_if="empty"``: none at all): evidence
         that ``T`` is wrong, strongest in look-alike rooms of another house, whose walls fit
-        but whose furniture stands elsewhere. A phantom seen twice where the other side saw
-        the floor empty counts too, hence the comparison with the support in
-        :meth:`_object_verdict`."""
+        but whose furniture stands elsewhere. A phantom seen twice counts too, hence the
+        comparison with the support in :meth:`_object_verdict`."""
         stored = self.memory.model(model_id)
         if stored is None or stored.scan is None or episode.scan is None:
             return 0
@@ -525,8 +526,8 @@ class Relocalizer:
     def _absent_from(self, model, T, other, table: ScanTable) -> int:
         """How many of ``model``'s objects seen at least twice, mapped by ``T`` into
         ``other``, lie where ``other`` had them in view (``table``) from at least
-        ``absence_views`` states and knows no object (``absent_if="class"``: none of
-        their class) within ``landmark_radius``."""
+        ``absence_views`` states and knows no object of their class (``absent_if="empty"``:
+        none at all) within ``landmark_radius``."""
         c = self.config
         if not len(table):
             return 0
