@@ -477,3 +477,39 @@ def test_absent_if_takes_a_known_rule():
 def test_cast_profiles_see_the_walls(walls):
     r = cast(walls, (2.5, 1.0, 0.0))
     assert (r < SCAN.max_range).all() and r.min() > 0.5
+
+
+@pytest.mark.parametrize("per_model", [1, 2])
+def test_a_look_alike_place_nearer_in_feature_space_does_not_hide_the_right_one(per_model):
+    """Each place of the stored room has a look-alike elsewhere in the same model, nearer in
+    feature space to what the episode sees than the right place is. With one hypothesis per
+    model a step, the look-alike is all the relocalizer ever judges (and refuses); with two,
+    the right place is judged too and the episode relocates where it truly is."""
+    def mix(k: int, w: float) -> np.ndarray:
+        v = unit(k) + w * unit(k + 1)
+        return (v / np.linalg.norm(v)).astype(np.float32)
+
+    T_true = (2.0, -1.0, 0.7)
+    m = stored_model()
+    for k, (x, y, t) in enumerate(WALK):  # the look-alikes: 1.5 m along the room, same heading
+        decoy = (x + 1.5 if x < 3 else x - 1.5, 4.0 - y, t)
+        m.add_state(mix(k, 0.12), decoy, (), step=100 + k, ranges=cast(ROOM_A, decoy))
+    memory = Memory({"a-e000": m}, threshold=0.05)
+    inv = se2.inverse(T_true)
+    states = [AbstractState(mix(k, 0.1), se2.compose(inv, w), (), cast(ROOM_A, w))
+              for k, w in enumerate(WALK)]
+    for s in states:  # the look-alike is the nearest stored state, the right one the next
+        near = [m.graph.nodes[n.state_id]["step"] for n in memory.nearest(s.features, 2)]
+        assert near[0] >= 100 > near[1]
+    rel = Relocalizer(memory, RelocationConfig(per_model=per_model))
+    r = run(rel, states)
+    if per_model == 1:
+        assert r is None and rel.decisions["verified"] == 0
+        return
+    assert r is not None and r.model_id == "a-e000"
+    assert math.dist(r.transform[:2], T_true[:2]) < 0.05
+
+
+def test_per_model_takes_at_least_one():
+    with pytest.raises(ValueError, match="per_model"):
+        RelocationConfig(per_model=0)

@@ -48,6 +48,10 @@ class RelocationConfig:
     """Tunable relocation behaviour. Distances in metres."""
 
     top_k: int = 3  # feature-space candidates considered per step
+    # ... and of them, at most this many per stored model (each a stored state, so a
+    # hypothesis of its own): with one, the model's nearest state, if it is a look-alike place,
+    # hides the model's others from verification at every step
+    per_model: int = 1
     geometry: bool = True  # verify hypotheses against range profiles (False: feature match only)
     confirm_matches: int = 2  # agreeing verified matches needed to accept (the paper: 1)
     confirm_window: int = 10  # steps within which they must fall
@@ -127,6 +131,8 @@ class RelocationConfig:
     joint: bool = True  # re-optimise the stored model at each merge (with a drift model)
 
     def __post_init__(self):
+        if int(self.per_model) < 1:
+            raise ValueError(f"per_model must be at least 1, got {self.per_model!r}")
         if self.absent_if not in ABSENT_IF:
             raise ValueError(f"absent_if must be one of {ABSENT_IF}, got {self.absent_if!r}")
 
@@ -282,7 +288,8 @@ class Relocalizer:
             return None
         best = None
         judged = 0
-        matches = self._matches(state.features)
+        per = max(1, self.config.per_model)
+        matches = self._matches(state.features, self.config.top_k * per, per)
         self.matched.update(m.model_id for m in matches)
         for m in matches:
             stored = self.memory.model(m.model_id)
@@ -355,14 +362,15 @@ class Relocalizer:
         self._failed = [f for f in self._failed if step - f[0] < self.config.rejudge_after]
         return any(f[1] == model_id and self._agree(f[2], T) for f in self._failed)
 
-    def _matches(self, features, k: int | None = None):
-        """The nearest stored states within the threshold, at most one per model."""
+    def _matches(self, features, k: int | None = None, per_model: int = 1):
+        """The nearest stored states within the threshold (of the ``k`` nearest), at most
+        ``per_model`` per model, nearest first."""
         threshold = self.memory.threshold
-        out, models = [], set()
+        out, models = [], Counter()
         for m in self.memory.nearest(features, k or self.config.top_k):
-            if m.distance < threshold and m.model_id not in models:
+            if m.distance < threshold and models[m.model_id] < per_model:
                 out.append(m)
-                models.add(m.model_id)
+                models[m.model_id] += 1
         return out
 
     def _confirmed(self, step: int, model_id: str, T) -> bool:
