@@ -57,6 +57,18 @@ def test_detections_beyond_radius_are_separate_objects():
     assert m.n_objects == 3
 
 
+def test_nearest_object_of_a_class_or_of_any():
+    m = AbstractModel(feature_dim=2, object_radius=0.5)
+    m.add_state(np.array([1.0, 0]), (0, 0, 0), [Detection("table", (1.0, 1.0, 0.5)),
+                                                  Detection("chair", (3.0, 1.0, 0.5))])
+    table, chair = (next(o for o in m.objects() if m.object_info(o).cls == c)
+                    for c in ("table", "chair"))
+    assert m.nearest_object("chair", 1.2, 1.0, 1.0) is None  # the table is near, not a chair
+    assert m.nearest_object(None, 1.2, 1.0, 1.0) == table
+    assert m.nearest_object(None, 2.5, 1.0, 1.0) == chair  # the nearer of the two
+    assert m.nearest_object(None, 2.0, 5.0, 1.0) is None
+
+
 def test_two_detections_of_one_object_in_one_state_count_one_view():
     m = AbstractModel(feature_dim=2)
     d = Detection("chair", (1.0, 1.0, 0.5))

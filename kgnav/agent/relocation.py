@@ -288,7 +288,7 @@ class Relocalizer:
             return None
         best = None
         judged = 0
-        per = max(1, self.config.per_model)
+        per = self.config.per_model  # at least 1 (RelocationConfig checks)
         matches = self._matches(state.features, self.config.top_k * per, per)
         self.matched.update(m.model_id for m in matches)
         for m in matches:
@@ -540,19 +540,14 @@ class Relocalizer:
         if not len(table):
             return 0
         n = model.graph.nodes
-        on = other.graph.nodes
-        there = np.array([(on[q]["x"], on[q]["y"]) for q in other.objects()],
-                         np.float64).reshape(-1, 2)
         count = 0
         for o in model.objects():
             d = n[o]
             if d.get("n_views", 1) < 2:
                 continue
             x, y = se2.apply_to_point(T, d["x"], d["y"])
-            if c.absent_if == "class":
-                if other.nearest_object(d["cls"], x, y, c.landmark_radius) is not None:
-                    continue
-            elif (np.hypot(there[:, 0] - x, there[:, 1] - y) <= c.landmark_radius).any():
+            cls = d["cls"] if c.absent_if == "class" else None  # "empty": any class will do
+            if other.nearest_object(cls, x, y, c.landmark_radius) is not None:
                 continue
             if len(table.covering(x, y, MISS_RANGE)) >= c.absence_views:
                 count += 1

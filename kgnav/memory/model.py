@@ -592,10 +592,11 @@ class AbstractModel:
                         best, best_d = o, dist
         return best
 
-    def nearest_object(self, cls: str, x: float, y: float, radius: float) -> str | None:
-        """The ``cls`` object nearest to (x, y) in the plane, if within ``radius`` metres."""
+    def nearest_object(self, cls: str | None, x: float, y: float, radius: float) -> str | None:
+        """The ``cls`` object (``None``: of any class) nearest to (x, y) in the plane, if within
+        ``radius`` metres."""
         best, best_d = None, float(radius)
-        for o in sorted(self._index.by_class.get(cls, ())):
+        for o in sorted(self.objects() if cls is None else self._index.by_class.get(cls, ())):
             d = self.graph.nodes[o]
             dist = math.hypot(d["x"] - x, d["y"] - y)
             if dist <= best_d:
