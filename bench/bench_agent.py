@@ -41,6 +41,7 @@ from kgnav.sim.noise import parse_noise
 TIMES: dict[str, float] = defaultdict(float)
 MERGE_CHECKS: list[float] = []  # CPU seconds of Relocalizer.mergeable per episode (not a step)
 CLOSE_LOOPS: list[float] = []  # ... of which the drift correction (Relocalizer.close_loops)
+SEARCHES: list[float] = []  # CPU s of each scan search (RelocationConfig.scan_search), in-loop
 
 
 def timed(name: str, fn):
@@ -67,16 +68,15 @@ class _Timed:
         return getattr(self._obj, attr)
 
 
-def _config(noise: str) -> AgentConfig:
+def _config(noise: str, relocation: dict | None = None) -> AgentConfig:
     """The agent's settings: with a drifting pose sensor, episodes are bent onto the memory
-    before merging (as ``kgnav eval`` does)."""
-    if not parse_noise(noise).odometry.active:
-        return AgentConfig()
-    return AgentConfig(relocation=RelocationConfig(drift=DriftModel()))
+    before merging (as ``kgnav eval`` does); ``relocation``: RelocationConfig settings."""
+    drift = DriftModel() if parse_noise(noise).odometry.active else None
+    return AgentConfig(relocation=RelocationConfig(drift=drift, **(relocation or {})))
 
 
 def _memory_of(env, extractor: str, segmenter: str, episodes: int,
-               noise: str = "none") -> Memory:
+               noise: str = "none", relocation: dict | None = None) -> Memory:
     """A memory of the house: the models of its first episodes, merged where they relocate
     (as Soft Incremental builds it), built outside the timing."""
     models: dict = {}
@@ -84,7 +84,7 @@ def _memory_of(env, extractor: str, segmenter: str, episodes: int,
     for e in range(episodes):
         agent = ObjectNavAgent(Camera.from_env(env), make_segmenter(segmenter), ext,
                                memory=Memory(models, threshold=loop_threshold(ext))
-                               if models else None, config=_config(noise))
+                               if models else None, config=_config(noise, relocation))
         obs, _ = env.reset(seed=100 + e, options={"episode": e})
         agent.reset(env.goal_class, seed=100 + e, scene=env.scene.name, episode=e,
                     model_id=f"m{e}")
@@ -101,23 +101,26 @@ def _memory_of(env, extractor: str, segmenter: str, episodes: int,
 
 
 def run(extractor: str, width: int, height: int, scenes: int, episodes: int, split: str,
-        segmenter: str = "learned", memory_episodes: int = 0, noise: str = "none") -> tuple:
+        segmenter: str = "learned", memory_episodes: int = 0, noise: str = "none",
+        relocation: dict | None = None) -> tuple:
     TIMES.clear()
     MERGE_CHECKS.clear()
     CLOSE_LOOPS.clear()
+    SEARCHES.clear()
     steps = 0
     memories = {}
     for s in range(scenes):  # generate (and cache) the houses, build memories, untimed
         env = ObjectNavEnv(split, s, width, height, noise=noise)
         if memory_episodes:
-            memories[s] = _memory_of(env, extractor, segmenter, memory_episodes, noise)
+            memories[s] = _memory_of(env, extractor, segmenter, memory_episodes, noise,
+                                     relocation)
     t0, c0 = time.perf_counter(), time.thread_time()
     for s in range(scenes):
         env = ObjectNavEnv(split, s, width, height, noise=noise)
         env.step = timed("simulator", env.step)
         agent = ObjectNavAgent(Camera.from_env(env), make_segmenter(segmenter),
                                make_extractor(extractor), memory=memories.get(s),
-                               config=_config(noise))
+                               config=_config(noise, relocation))
         if agent.relocalizer is not None:
             close = agent.relocalizer.close_loops
 
@@ -128,6 +131,14 @@ def run(extractor: str, width: int, height: int, scenes: int, episodes: int, spl
                 finally:
                     CLOSE_LOOPS.append(time.thread_time() - c)
             agent.relocalizer.close_loops = close_loops
+            search = agent.relocalizer._search
+
+            def searched(step, _search=search, _rel=agent.relocalizer):
+                n, c = _rel.decisions["scan search"], time.thread_time()
+                _search(step)
+                if _rel.decisions["scan search"] > n:  # a search ran (not only its check)
+                    SEARCHES.append(time.thread_time() - c)
+            agent.relocalizer._search = searched
         agent.segmenter = _Timed("segmenter", agent.segmenter)
         agent.extractor = _Timed("state features", agent.extractor)
         agent.state_creator = _Timed("state creator", agent.state_creator)
@@ -172,7 +183,16 @@ def main() -> None:
     ap.add_argument("--memory-episodes", type=int, default=0,
                     help="with memory: the house's first N episodes build it (untimed), the "
                          "next --episodes are timed with it (Soft Incremental)")
+    ap.add_argument("--relocation", action="append", default=[], metavar="KEY=VALUE",
+                    help="a RelocationConfig setting, e.g. scan_search=10 (repeatable; "
+                         "integers and floats only)")
     args = ap.parse_args()
+    relocation = {}
+    for kv in args.relocation:
+        key, _, value = kv.partition("=")
+        if not value:
+            ap.error(f"--relocation takes KEY=VALUE, got {kv!r}")
+        relocation[key] = float(value) if "." in value else int(value)
     summary = []
     memory = f", memory of {args.memory_episodes} episodes" if args.memory_episodes else ""
     for name in args.extractors.split(","):
@@ -182,7 +202,7 @@ def main() -> None:
             continue
         rows, rate, wall_rate, steps = run(name, args.width, args.height, args.scenes,
                                            args.episodes, args.split, args.segmenter,
-                                           args.memory_episodes, args.noise)
+                                           args.memory_episodes, args.noise, relocation)
         print_table(f"agent loop, {name}, {args.segmenter} segmenter, {args.split}{memory}, "
                     f"{args.width}x{args.height}, {steps} steps ({rate:.0f} steps/s CPU)",
                     ["stage", "ms/step", "% of time"], rows)
@@ -194,13 +214,16 @@ def main() -> None:
         if CLOSE_LOOPS:
             close_ms = (f"{1000 * max(CLOSE_LOOPS):.0f} / "
                         f"{1000 * sum(CLOSE_LOOPS) / len(CLOSE_LOOPS):.0f}")
+        search_ms = "–"
+        if SEARCHES:
+            search_ms = f"{len(SEARCHES)}: {1000 * sum(SEARCHES) / len(SEARCHES):.0f}"
         summary.append([name, args.segmenter, args.split, args.noise, args.memory_episodes,
                         f"{args.width}x{args.height}", steps, rate, wall_rate, merge_ms,
-                        close_ms])
+                        close_ms, search_ms])
     print_table("whole loop (target >= 100 steps/s at 160x120)",
                 ["features", "segmenter", "split", "noise", "memory eps", "resolution", "steps",
                  "steps/s (CPU)", "steps/s (wall)", "merge check ms (max / mean)",
-                 "drift correction ms (max / mean)"], summary)
+                 "drift correction ms (max / mean)", "scan searches: ms each"], summary)
 
 
 if __name__ == "__main__":

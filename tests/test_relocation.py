@@ -513,3 +513,193 @@ def test_a_look_alike_place_nearer_in_feature_space_does_not_hide_the_right_one(
 def test_per_model_takes_at_least_one():
     with pytest.raises(ValueError, match="per_model"):
         RelocationConfig(per_model=0)
+
+
+# ---------------------------------------------------------------------- the scan search
+def _walls_points(walls, step=0.05) -> np.ndarray:
+    pts = []
+    for (ax, ay), (bx, by) in walls:
+        n = max(int(math.hypot(bx - ax, by - ay) / step), 1)
+        t = np.linspace(0, 1, n + 1)[:, None]
+        pts.append(np.array([ax, ay]) + t * np.array([bx - ax, by - ay]))
+    return np.concatenate(pts)
+
+
+@pytest.mark.parametrize("T_true", [(2.0, -1.0, 0.7), (-3.0, 4.0, -2.5), (0.3, 0.2, 3.0)])
+def test_the_scan_search_places_the_walls_where_they_are(T_true):
+    """The stored room's own walls, seen from a frame turned and shifted by ``T_true``, are
+    placed back by the coarse search within a cell and a heading step."""
+    from kgnav.agent.scan_search import distinct, search
+
+    memory = Memory({"a-e000": stored_model()}, threshold=0.05)
+    geo = memory.geometry("a-e000")
+    ends = se2.apply_to_points(se2.inverse(T_true), _walls_points(ROOM_A))
+    found = distinct(search(geo, ends))
+    best = found[0].transform
+    off = se2.apply_to_points(best, ends) - se2.apply_to_points(T_true, ends)
+    assert np.hypot(off[:, 0], off[:, 1]).max() < 0.35  # where the walls land, not T itself:
+    assert se2.angle_diff(best[2], T_true[2]) < math.radians(6)  # a turn far from the frame's
+    # origin moves T a lot
+    assert found[0].score > 0.6
+    assert all(q.score < found[0].score for q in found[1:])  # the stub tells the turn apart
+
+
+def test_distinct_keeps_only_placements_elsewhere():
+    from kgnav.agent.scan_search import Placement, distinct
+
+    qs = [Placement((0.0, 0.0, 0.0), 0.9), Placement((0.5, 0.0, 0.1), 0.8),
+          Placement((0.0, 0.0, 1.0), 0.7), Placement((2.0, 0.0, 0.0), 0.6)]
+    assert [q.score for q in distinct(qs)] == [0.9, 0.7, 0.6]
+
+
+def test_the_scan_search_of_an_empty_model_finds_nothing():
+    from kgnav.agent.relocation import StoredGeometry
+    from kgnav.agent.scan_search import search
+    from kgnav.memory.geometry import OccupancyGrid
+
+    grid = OccupancyGrid(np.ones((20, 20), np.uint16), np.zeros((20, 20), np.uint16),
+                         0.0, 0.0, 0.05)
+    assert search(StoredGeometry(grid), np.ones((10, 2))) == []
+    assert search(StoredGeometry(grid), np.zeros((0, 2))) == []
+
+
+SEARCH = dict(scan_search=4, search_scans=6)
+
+
+def _unmatched_walk(walls, T_true, laps=3):
+    """The walk ``laps`` times over, with features that match no stored state: only the
+    walls can tell where the episode is."""
+    inv = se2.inverse(T_true)
+    return [AbstractState(NO_MATCH, se2.compose(inv, w), (), cast(walls, w))
+            for _ in range(laps) for w in WALK]
+
+
+@pytest.mark.parametrize("interval", [0, 4])
+def test_the_scan_search_relocates_where_no_stored_state_looks_alike(interval):
+    T_true = (2.0, -1.0, 0.7)
+    memory = Memory({"a-e000": stored_model()}, threshold=0.05)
+    rel = Relocalizer(memory, RelocationConfig(**{**SEARCH, "scan_search": interval}))
+    r = run(rel, _unmatched_walk(ROOM_A, T_true))
+    if interval == 0:  # feature matching alone never proposes anything
+        assert r is None and rel.decisions["verified"] == 0
+        return
+    assert r is not None and r.model_id == "a-e000" and r.source == "scan search"
+    assert r.state_id == "" and math.isnan(r.distance)
+    assert math.dist(r.transform[:2], T_true[:2]) < 0.05
+    assert se2.angle_diff(r.transform[2], T_true[2]) < math.radians(2)
+    assert rel.decisions["scan search accepted"] == 1
+
+
+def test_the_scan_search_does_not_relocate_into_another_house():
+    memory = Memory({"a-e000": stored_model()}, threshold=0.05)
+    rel = Relocalizer(memory, RelocationConfig(**SEARCH))
+    assert run(rel, _unmatched_walk(ROOM_B, (0.5, 0.0, 0.3))) is None
+    assert rel.decisions["scan search"] >= 1 and rel.decisions["scan search accepted"] == 0
+
+
+def test_the_scan_search_proposes_nothing_in_a_symmetric_room():
+    """A bare rectangle fits its walls turned half round as well as the right way: two
+    placements fit about as well, so no hypothesis (a rotated twin must not be merged)."""
+    bare = ROOM_A[:4]
+    memory = Memory({"a-e000": stored_model(walls=bare)}, threshold=0.05)
+    rel = Relocalizer(memory, RelocationConfig(**SEARCH))
+    assert run(rel, _unmatched_walk(bare, (2.0, -1.0, 0.7))) is None
+    assert rel.decisions["scan search ambiguous"] >= 1
+    assert rel.decisions["scan search accepted"] == 0
+
+
+@pytest.mark.parametrize("late_search", [0, 2])
+def test_the_late_search_merges_an_episode_no_state_matched(late_search):
+    """No state of the episode matches a stored one, so neither navigation nor the late
+    match's feature votes propose anything; the search of the whole episode's walls does."""
+    T_true = (2.0, -1.0, 0.7)
+    memory = Memory({"a-e000": stored_model()}, threshold=0.05)
+    states = _unmatched_walk(ROOM_A, T_true, laps=1)
+    rel = Relocalizer(memory, RelocationConfig(late_search=late_search))
+    assert run(rel, states) is None
+    r = rel.mergeable(_episode_model(states))
+    if late_search == 0:
+        assert r is None
+        return
+    assert r is not None and r.late and r.model_id == "a-e000"
+    assert math.dist(r.transform[:2], T_true[:2]) < 0.05
+    assert rel.decisions["late search"] == 1 and rel.decisions["late match"] == 1
+
+
+def test_the_late_search_does_not_merge_another_house():
+    m = AbstractModel(DIM, model_id="h1-e000", extractor="toy", scan=SCAN)
+    for k, pose in enumerate(WALK + EAST_WALK):
+        m.add_state(unit(k), pose, (), step=k, ranges=cast(HOUSE_1, pose))
+    memory = Memory({"h1-e000": m}, threshold=0.05)
+    states = [AbstractState(NO_MATCH, pose, (), cast(HOUSE_2, pose))
+              for pose in EAST_WALK * 2 + WALK]
+    rel = Relocalizer(memory, RelocationConfig(late_search=2, **SEARCH))
+    # while navigating, the narrow room's walls fit house 1's wide one shifted (its far
+    # wall and its pillar): a look-alike, accepted as feature matches in look-alikes are ...
+    run(rel, states)
+    # ... and refused at the end, when the whole episode is judged, however proposed
+    assert rel.mergeable(_episode_model(states)) is None
+    assert rel.decisions["late match"] == 0 and rel.decisions["merge refused: conflict"] == 1
+    late = Relocalizer(memory, RelocationConfig(late_search=2))  # never relocated
+    assert run(late, states) is None
+    assert late.mergeable(_episode_model(states)) is None
+    assert late.decisions["late search"] == 1 and late.decisions["late match"] == 0
+
+
+@pytest.mark.parametrize("classes", [("bed", "chair", "tv_monitor"), ("sofa", "toilet", "plant")])
+def test_a_scan_search_hypothesis_the_objects_contradict_is_not_accepted(classes):
+    """The walls fit (the same room shape), but where the stored model has a bed, a chair and
+    a monitor the episode sees a sofa, a toilet and a plant, each twice: another house's room
+    of the same shape. The scan search's hypothesis is refused before it is accepted; with
+    the same furniture it is accepted."""
+    T_true = (2.0, -1.0, 0.7)
+    spots = [(1.0, 1.0, 0.5), (5.0, 1.0, 0.5), (5.0, 3.0, 0.5)]
+    stored = stored_model(objects=tuple(
+        Detection(c, p) for c, p in zip(("bed", "chair", "tv_monitor"), spots, strict=True)))
+    memory = Memory({"a-e000": stored}, threshold=0.05)
+    inv = se2.inverse(T_true)
+    seen = tuple(Detection(c, (*se2.apply_to_point(inv, x, y), z))
+                 for c, (x, y, z) in zip(classes, spots, strict=True))
+    states = [AbstractState(s.features, s.pose, seen, s.ranges)
+              for s in _unmatched_walk(ROOM_A, T_true)]
+    episode = AbstractModel(DIM, model_id="a-e001", extractor="toy", scan=SCAN)
+    for k, s in enumerate(states[:2]):  # each object seen twice already
+        episode.add_state(s.features, s.pose, seen, step=k, ranges=s.ranges)
+    rel = Relocalizer(memory, RelocationConfig(**SEARCH))
+    got = None
+    for step, s in enumerate(states):
+        got = rel.observe(step, s, SCAN, episode) or got
+    if classes[0] == "bed":
+        assert got is not None and got.source == "scan search"
+        assert rel.decisions["scan search refuted by objects"] == 0
+    else:
+        assert got is None and rel.decisions["scan search refuted by objects"] >= 1
+
+
+def test_a_model_whose_scan_search_relocation_was_undone_is_not_searched_again():
+    T_true = (2.0, -1.0, 0.7)
+    spots = [(1.0, 1.0, 0.5), (5.0, 1.0, 0.5), (5.0, 3.0, 0.5)]
+    stored = stored_model(objects=tuple(
+        Detection(c, p) for c, p in zip(("bed", "chair", "tv_monitor"), spots, strict=True)))
+    memory = Memory({"a-e000": stored}, threshold=0.05)
+    inv = se2.inverse(T_true)
+    wrong = tuple(Detection(c, (*se2.apply_to_point(inv, x, y), z))
+                  for c, (x, y, z) in zip(("sofa", "toilet", "plant"), spots, strict=True))
+    states = [AbstractState(s.features, s.pose, wrong, s.ranges)
+              for s in _unmatched_walk(ROOM_A, T_true, laps=6)]
+    rel = Relocalizer(memory, RelocationConfig(**SEARCH))
+    accepted = undone = None
+    for step, s in enumerate(states):
+        if rel.relocation is not None:
+            if not rel.check(s, step):
+                undone = step
+        elif rel.observe(step, s, SCAN) is not None:
+            accepted = step
+        if undone is not None:
+            break
+    assert accepted is not None and undone is not None  # the landmarks refuted it
+    assert rel.decisions["undone by landmarks"] == 1
+    searches = rel.decisions["scan search"]
+    for step, s in enumerate(states[undone + 1:], undone + 1):
+        assert rel.observe(step, s, SCAN) is None
+    assert rel.decisions["scan search"] == searches  # the refuted model is searched no more

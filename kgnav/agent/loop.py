@@ -371,7 +371,7 @@ class ObjectNavAgent:
         if self.current_ is self.model_:
             self._seen_here.update(self.model_.graph.successors(sid))
         if reloc is not None:
-            new = reloc.observe(self.step_, s, self.state_creator.scan)
+            new = reloc.observe(self.step_, s, self.state_creator.scan, self.model_)
             if new is not None:
                 self._relocated(new, sid)
 

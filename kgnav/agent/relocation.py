@@ -31,11 +31,13 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from kgnav.agent import scan_search
 from kgnav.common import se2
 from kgnav.memory.constants import JOIN_EPISODE
 from kgnav.memory.evidence import MISS_RANGE, ScanTable
 from kgnav.memory.geometry import OccupancyGrid, occupancy_from_scans
 from kgnav.memory.posegraph import Anchor, Correction, DriftModel, correct, travelled
+from kgnav.memory.relocator import Match
 
 _START = "episode start"  # the anchor holding an episode corrected on itself in its frame
 #: What the other side must lack near an object for it to be absent
@@ -65,6 +67,17 @@ class RelocationConfig:
     icp_rounds: int = 20  # alignment iterations at most; it stops when T no longer moves
     rejudge_after: int = 3  # steps before a refused hypothesis is judged again
     verify_per_step: int = 1  # hypotheses verified per step at most (the best matches first)
+    # every this many steps while not relocated, search the stored models the views looked
+    # most like for where the recent range profiles fit (kgnav.agent.scan_search), as well as
+    # proposing from feature matches: a place the memory saw from afar, or whose nearest
+    # looking states are look-alikes, is found by its walls (0: off)
+    scan_search: int = 0
+    search_models: int = 2  # models searched each time (the most looked like)
+    search_scans: int = 20  # recent profiles needed before searching
+    search_refine: int = 3  # best distinct placements aligned and judged per model searched
+    # at the episode's end, the late match also judges this many best distinct placements of
+    # the whole episode's profiles in each of the search_models models (0: off)
+    late_search: int = 0
     max_correction: tuple[float, float] = (1.0, 20.0)  # ICP may move T this much (m, degrees)
     landmark_radius: float = 1.5  # landmark pairing radius for checks and refinement (0: off)
     refine_pairs: int = 60  # most recent landmark pairs used to refine
@@ -153,6 +166,8 @@ class Relocation:
     conflicts: float | None = None
     points: int = 0  # points the verification judged
     late: bool = False  # found at the episode's end from all its states, not while navigating
+    source: str = "features"  # what proposed it: "features" or "scan search" (no state, no
+    # distance: ``state_id`` is "" and ``distance`` NaN, as for a late match)
     # the transform as accepted at ``step``: ``transform`` is refined as the episode goes on
     # (and, with drift, follows the odometry away from ``at``), so only this one says how
     # precisely the relocation placed the agent where it was made
@@ -271,11 +286,16 @@ class Relocalizer:
         self._last_bridge = 0
         self._scan_tables: dict[str, ScanTable] = {}  # per stored model, for object_absence
         self._episode_table: tuple | None = None  # (episode model, its table)
+        self._votes: Counter = Counter()  # steps each model held the view's nearest state
+        self._pending: list[tuple] = []  # (step, Match, T) found by the scan search
+        self._last_search = 0
+        self._search_refuted: set[str] = set()  # models a scan search relocation was undone in
 
     # ------------------------------------------------------------------ proposing
-    def observe(self, step: int, state, scan) -> Relocation | None:
+    def observe(self, step: int, state, scan, episode=None) -> Relocation | None:
         """Note the state's range profile; while not relocated, try to relocate on it.
-        Returns the relocation accepted at this step, if any."""
+        Returns the relocation accepted at this step, if any. ``episode``: the episode's
+        model so far, whose objects a scan search's hypothesis must not contradict."""
         if state.ranges is not None and scan is not None:
             self._recent.append((state.pose, np.asarray(state.ranges, np.float32), scan))
             self._all.append(self._recent[-1])
@@ -289,13 +309,22 @@ class Relocalizer:
         best = None
         judged = 0
         per = self.config.per_model  # at least 1 (RelocationConfig checks)
-        matches = self._matches(state.features, self.config.top_k * per, per)
+        nearest = self.memory.nearest(state.features, self.config.top_k * per)
+        matches = self._within(nearest, per)
         self.matched.update(m.model_id for m in matches)
+        if nearest:  # the model the view looks most like, within the threshold or not
+            self._votes[nearest[0].model_id] += 1
+        self._search(step)
+        self._pending = [p for p in self._pending if step - p[0] < self.config.confirm_window]
+        hypotheses = [(p[1], p[2], "scan search") for p in self._pending]
         for m in matches:
             stored = self.memory.model(m.model_id)
-            T = se2.anchor_transform(stored.pose(m.state_id), state.pose)
+            hypotheses.append((m, se2.anchor_transform(stored.pose(m.state_id), state.pose),
+                               "features"))
+        for m, T, source in hypotheses:
             if any(u.model_id == m.model_id and self._agree(u.transform, T) for u in self.undone):
                 self.decisions["refuted before"] += 1
+                self._drop_pending(m.model_id, T)
                 continue
             if self.config.geometry:
                 if self._judged_lately(step, m.model_id, T):
@@ -307,6 +336,7 @@ class Relocalizer:
                 self.decisions[v.reason] += 1
                 if not v.ok:
                     self._failed.append((step, m.model_id, tuple(T)))
+                    self._drop_pending(m.model_id, T)
                     continue
             else:
                 v = Verdict(True, "feature match", tuple(T))
@@ -318,20 +348,32 @@ class Relocalizer:
                 if alt is not None:  # a corridor, a symmetric room, a repeated room
                     self.decisions["ambiguous"] += 1
                     self._failed.append((step, m.model_id, tuple(T)))
+                    self._drop_pending(m.model_id, T)
                     continue
+            if (source == "scan search" and episode is not None
+                    and self._objects_refute(episode, m.model_id, v.transform)):
+                # walls alone fit a look-alike room of another house as well as the right
+                # one; its furniture stands elsewhere (the checks that undo a relocation,
+                # made before accepting it: no stored state vouches for this place)
+                self.decisions["scan search refuted by objects"] += 1
+                self._failed.append((step, m.model_id, tuple(T)))
+                self._drop_pending(m.model_id, T)
+                continue
             if best is None or v.inliers > best[1].inliers:
-                best = (m, v)
+                best = (m, v, source)
             if not self.config.geometry:
                 break  # the paper: the first match
         if best is None:
             return None
-        m, v = best
+        m, v, source = best
+        if source == "scan search":
+            self.decisions["scan search accepted"] += 1
         self.relocation = Relocation(step, m.model_id, m.state_id, m.distance,
                                      tuple(float(x) for x in v.transform),
                                      (float(state.pose[0]), float(state.pose[1])),
                                      inliers=round(v.inliers, 3) if self.config.geometry else None,
                                      conflicts=round(v.conflicts, 3) if self.config.geometry
-                                     else None, points=v.points)
+                                     else None, points=v.points, source=source)
         self._last_bridge = step
         stored = self.memory.model(m.model_id)
         nodes = stored.graph.nodes
@@ -365,13 +407,74 @@ class Relocalizer:
     def _matches(self, features, k: int | None = None, per_model: int = 1):
         """The nearest stored states within the threshold (of the ``k`` nearest), at most
         ``per_model`` per model, nearest first."""
+        return self._within(self.memory.nearest(features, k or self.config.top_k), per_model)
+
+    def _within(self, nearest, per_model: int = 1):
+        """Of the stored states ``nearest`` (nearest first), those within the threshold, at
+        most ``per_model`` per model."""
         threshold = self.memory.threshold
         out, models = [], Counter()
-        for m in self.memory.nearest(features, k or self.config.top_k):
+        for m in nearest:
             if m.distance < threshold and models[m.model_id] < per_model:
                 out.append(m)
                 models[m.model_id] += 1
         return out
+
+    def _search(self, step: int) -> None:
+        """Every ``scan_search`` steps, search the ``search_models`` stored models the
+        episode's views looked most like (:mod:`kgnav.agent.scan_search`) for where the recent
+        range profiles fit. The ``search_refine`` best distinct placements are aligned (ICP)
+        and judged; the best verified one becomes a pending hypothesis, verified like a
+        feature match in the next steps, unless another fits about as well (as in
+        :meth:`ambiguity`, but anywhere in the model: a repeated or symmetric room)."""
+        c = self.config
+        if (c.scan_search <= 0 or not c.geometry or step - self._last_search < c.scan_search
+                or len(self._recent) < c.search_scans):
+            return
+        self._last_search = step
+        ends, fans = self._episode_geometry(self._recent)
+        if len(ends) < c.min_points:
+            return
+        votes = Counter({mid: n for mid, n in self._votes.items()
+                         if mid not in self._search_refuted})
+        for model_id, _ in votes.most_common(c.search_models):
+            geo = self.memory.geometry(model_id)
+            if geo is None or geo.grad_x is None:
+                continue
+            self.decisions["scan search"] += 1
+            found = scan_search.distinct(scan_search.search(geo, ends))[:c.search_refine]
+            judged = [self._judge(geo, ends, fans, self._align(geo, ends, q.transform))
+                      for q in found]
+            ok = [v for v in judged if v.ok]
+            if not ok:
+                self.decisions["scan search refused"] += 1
+                continue
+            best = max(ok, key=_margin)
+            if any(w is not best and not self._agree(w.transform, best.transform)
+                   and w.points >= c.min_points and w.inliers >= best.inliers - c.unique_margin
+                   and w.conflicts <= c.max_conflicts for w in judged):
+                self.decisions["scan search ambiguous"] += 1
+                continue
+            T = best.transform
+            if not any(p[1].model_id == model_id and self._agree(p[2], T)
+                       for p in self._pending):
+                self._pending.append((step, Match(model_id, "", math.nan), T))
+
+    def _objects_refute(self, episode, model_id: str, T) -> bool:
+        """Whether the ``episode``'s objects refute ``T`` into ``model_id``: enough of them
+        checked (``merge_objects``) and too few finding their class there (``merge_support``),
+        or evidence of absence (:meth:`_absent`)."""
+        c = self.config
+        if c.landmark_radius <= 0:
+            return False
+        checked, supported = self.object_support(episode, model_id, T)
+        if checked >= c.merge_objects and supported < c.merge_support * checked:
+            return True
+        return c.absence_views > 0 and self._absent(episode, model_id, T, supported)
+
+    def _drop_pending(self, model_id: str, T) -> None:
+        self._pending = [p for p in self._pending
+                         if not (p[1].model_id == model_id and self._agree(p[2], T))]
 
     def _confirmed(self, step: int, model_id: str, T) -> bool:
         need = self.config.confirm_matches
@@ -612,6 +715,31 @@ class Relocalizer:
         return {mid: [cl[0] for cl in sorted(cls, key=lambda cl: -cl[1])[:k]]
                 for mid, cls in votes.items()}
 
+    def _searched_hypotheses(self, scans, refused: dict) -> dict[str, list]:
+        """With ``late_search``, the ``late_search`` best distinct placements of the whole
+        episode's profiles ``scans`` in each of the ``search_models`` models its views looked
+        most like (:mod:`kgnav.agent.scan_search`), less those agreeing with a transform
+        already refused for that model: an episode that shared no stored state with a model
+        may still have walked its rooms."""
+        c = self.config
+        if c.late_search <= 0 or not self._votes:
+            return {}
+        ends, _ = self._episode_geometry(scans)
+        if len(ends) < c.min_points:
+            return {}
+        out: dict[str, list] = {}
+        for mid, _ in self._votes.most_common(c.search_models):
+            geo = self.memory.geometry(mid)
+            if geo is None or geo.grad_x is None:
+                continue
+            self.decisions["late search"] += 1
+            found = scan_search.distinct(scan_search.search(geo, ends))[:c.late_search]
+            Ts = [q.transform for q in found
+                  if not any(self._agree(q.transform, u) for u in refused.get(mid, ()))]
+            if Ts:
+                out[mid] = Ts
+        return out
+
     def mergeable(self, episode=None) -> Relocation | None:
         """The relocation to merge the episode with at its end, or None to store it as a new
         model.
@@ -650,6 +778,8 @@ class Relocalizer:
         hyps: dict[str, list] = {mid: [b.transform] for mid, b in self.bridges.items()}
         if episode is not None and c.late_match:
             for mid, Ts in self._episode_hypotheses(episode, refused).items():
+                hyps.setdefault(mid, []).extend(Ts)
+            for mid, Ts in self._searched_hypotheses(scans, refused).items():
                 hyps.setdefault(mid, []).extend(Ts)
         found: dict[str, Verdict] = {}
         bent: dict[str, tuple[Verdict, Correction]] = {}  # late matches made by bending
@@ -1065,6 +1195,10 @@ class Relocalizer:
 
     def _undo(self, why: str) -> bool:
         self.decisions[why] += 1
+        if self.relocation.source == "scan search":
+            # a model the walls fitted and the episode then refuted is most likely another
+            # house's: searching it again would find the next look-alike room in it
+            self._search_refuted.add(self.relocation.model_id)
         self.undone.append(self.relocation)
         self.relocation = None
         self._pairs, self._candidates = [], []

@@ -477,8 +477,9 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     if not variant.oracle and agent.log_.undone:
         record["undone"] = [_relocation_fields(gt, u) for u in agent.log_.undone]
     if reloc is not None:
-        record["relocation"] = {"distance": round(float(reloc.distance), 4),
-                                **_relocation_fields(gt, reloc)}
+        record["relocation"] = {"distance": (round(float(reloc.distance), 4)
+                                             if math.isfinite(reloc.distance) else None),
+                                "source": reloc.source, **_relocation_fields(gt, reloc)}
         if tracking is not None:
             record["relocation"].update(tracking.summary(reloc, path))
     rel = getattr(agent, "relocalizer", None)
