@@ -703,3 +703,31 @@ def test_a_model_whose_scan_search_relocation_was_undone_is_not_searched_again()
     for step, s in enumerate(states[undone + 1:], undone + 1):
         assert rel.observe(step, s, SCAN) is None
     assert rel.decisions["scan search"] == searches  # the refuted model is searched no more
+
+
+@pytest.mark.parametrize("support", [0, 3, 4])
+def test_search_support_asks_the_episode_objects_for_positive_evidence(support):
+    """The same room with the same three objects (each seen twice): three support the scan
+    search's hypothesis, so it stands with ``search_support`` up to 3 and waits at 4; in a
+    bare room with no object it stands only with 0 (walls alone)."""
+    T_true = (2.0, -1.0, 0.7)
+    spots = [(1.0, 1.0, 0.5), (5.0, 1.0, 0.5), (5.0, 3.0, 0.5)]
+    classes = ("bed", "chair", "tv_monitor")
+    inv = se2.inverse(T_true)
+    seen = tuple(Detection(c, (*se2.apply_to_point(inv, x, y), z))
+                 for c, (x, y, z) in zip(classes, spots, strict=True))
+    for furnished in (True, False):
+        stored = stored_model(objects=tuple(
+            Detection(c, p) for c, p in zip(classes, spots, strict=True)) if furnished else ())
+        memory = Memory({"a-e000": stored}, threshold=0.05)
+        states = [AbstractState(s.features, s.pose, seen if furnished else (), s.ranges)
+                  for s in _unmatched_walk(ROOM_A, T_true)]
+        episode = AbstractModel(DIM, model_id="a-e001", extractor="toy", scan=SCAN)
+        for k, s in enumerate(states[:2]):
+            episode.add_state(s.features, s.pose, s.detections, step=k, ranges=s.ranges)
+        rel = Relocalizer(memory, RelocationConfig(search_support=support, **SEARCH))
+        got = None
+        for step, s in enumerate(states):
+            got = rel.observe(step, s, SCAN, episode) or got
+        stands = support <= (3 if furnished else 0)
+        assert (got is not None) is stands, (furnished, support)

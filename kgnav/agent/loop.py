@@ -143,7 +143,8 @@ class AgentConfig:
                    relocation=RelocationConfig(geometry=False, confirm_matches=1,
                                                landmark_radius=0.0, bridge_interval=0,
                                                unique=False, merge_check=False,
-                                               late_match=False),
+                                               late_match=False, scan_search=0,
+                                               late_search=0),
                    seed_map=False, unknown_speed=1.0, confirm_distance=0.0, soft_search="area",
                    live_override="always", look_around=False, bridged_goals=False)
         return replace(base, **overrides)

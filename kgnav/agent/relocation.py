@@ -70,7 +70,9 @@ class RelocationConfig:
     # every this many steps while not relocated, search the stored models the views looked
     # most like for where the recent range profiles fit (kgnav.agent.scan_search), as well as
     # proposing from feature matches: a place the memory saw from afar, or whose nearest
-    # looking states are look-alikes, is found by its walls (0: off)
+    # looking states are look-alikes, is found by its walls (0: off, the default: on
+    # MiniWorld's look-alike rooms it merged into other houses; docs/memory.md, "The scan
+    # search")
     scan_search: int = 0
     search_models: int = 2  # models searched each time (the most looked like)
     search_scans: int = 20  # recent profiles needed before searching
@@ -78,6 +80,10 @@ class RelocationConfig:
     # at the episode's end, the late match also judges this many best distinct placements of
     # the whole episode's profiles in each of the search_models models (0: off)
     late_search: int = 0
+    # a scan search's hypothesis is accepted only when at least this many of the episode's
+    # objects (seen twice) find their class there: positive evidence, where walls alone fit
+    # a look-alike room of another house (0: no objects needed, only none contradicting)
+    search_support: int = 0
     max_correction: tuple[float, float] = (1.0, 20.0)  # ICP may move T this much (m, degrees)
     landmark_radius: float = 1.5  # landmark pairing radius for checks and refinement (0: off)
     refine_pairs: int = 60  # most recent landmark pairs used to refine
@@ -463,11 +469,14 @@ class Relocalizer:
     def _objects_refute(self, episode, model_id: str, T) -> bool:
         """Whether the ``episode``'s objects refute ``T`` into ``model_id``: enough of them
         checked (``merge_objects``) and too few finding their class there (``merge_support``),
-        or evidence of absence (:meth:`_absent`)."""
+        or evidence of absence (:meth:`_absent`), or fewer than ``search_support`` finding
+        their class there."""
         c = self.config
         if c.landmark_radius <= 0:
             return False
         checked, supported = self.object_support(episode, model_id, T)
+        if supported < c.search_support:
+            return True
         if checked >= c.merge_objects and supported < c.merge_support * checked:
             return True
         return c.absence_views > 0 and self._absent(episode, model_id, T, supported)
