@@ -626,6 +626,120 @@ def test_the_late_search_merges_an_episode_no_state_matched(late_search):
     assert rel.decisions["late search"] == 1 and rel.decisions["late match"] == 1
 
 
+@pytest.mark.parametrize("support", [0, 3, 4])
+def test_search_support_holds_for_the_late_search_too(support):
+    """The late search's placements are the walls' alone, as a live scan search's are:
+    with ``search_support`` the merge asks as many of the episode's objects to find their
+    class there (three do in the furnished room, none in the bare one)."""
+    T_true = (2.0, -1.0, 0.7)
+    spots = [(1.0, 1.0, 0.5), (5.0, 1.0, 0.5), (5.0, 3.0, 0.5)]
+    classes = ("bed", "chair", "tv_monitor")
+    inv = se2.inverse(T_true)
+    seen = tuple(Detection(c, (*se2.apply_to_point(inv, x, y), z))
+                 for c, (x, y, z) in zip(classes, spots, strict=True))
+    for furnished in (True, False):
+        stored = stored_model(objects=tuple(
+            Detection(c, p) for c, p in zip(classes, spots, strict=True)) if furnished else ())
+        memory = Memory({"a-e000": stored}, threshold=0.05)
+        states = _unmatched_walk(ROOM_A, T_true, laps=1)
+        episode = AbstractModel(DIM, model_id="a-e001", extractor="toy", scan=SCAN)
+        for k, s in enumerate(states):
+            episode.add_state(s.features, s.pose, seen if furnished else (), step=k,
+                              ranges=s.ranges)
+        rel = Relocalizer(memory, RelocationConfig(late_search=2, search_support=support))
+        assert run(rel, states) is None
+        r = rel.mergeable(episode)
+        stands = support <= (3 if furnished else 0)
+        assert (r is not None) is stands, (furnished, support)
+        if stands:
+            assert r.late and math.dist(r.transform[:2], T_true[:2]) < 0.05
+        else:
+            assert rel.decisions["episode match refused: search unsupported"] >= 1
+
+
+@pytest.mark.parametrize("search_inliers", [0.0, 0.95])
+def test_search_inliers_asks_the_walls_to_fit_as_a_room_fits_itself(search_inliers):
+    """The episode's room is the stored one with a 0.3 m pillar the memory never saw: its
+    walls fit at 0.93, verified (min_inliers 0.75) but not as well as a room fits itself,
+    which is all a scan search's hypothesis has to go on. With search_inliers 0.95 it is
+    refused."""
+    T_true = (2.0, -1.0, 0.7)
+    x, y, a = 4.3, 1.8, 0.3
+    pillar = [((x, y), (x + a, y)), ((x + a, y), (x + a, y + a)),
+              ((x + a, y + a), (x, y + a)), ((x, y + a), (x, y))]
+    memory = Memory({"a-e000": stored_model()}, threshold=0.05)
+    rel = Relocalizer(memory, RelocationConfig(search_inliers=search_inliers, **SEARCH))
+    r = run(rel, _unmatched_walk(ROOM_A + pillar, T_true))
+    if search_inliers == 0:
+        assert r is not None and r.source == "scan search" and 0.9 < r.inliers < 0.95
+        assert math.dist(r.transform[:2], T_true[:2]) < 0.05
+    else:
+        assert r is None and rel.decisions["scan search walls only"] >= 1
+    states = _unmatched_walk(ROOM_A + pillar, T_true, laps=1)  # the late search's, too
+    late = Relocalizer(memory, RelocationConfig(late_search=2, search_inliers=search_inliers))
+    assert run(late, states) is None
+    r = late.mergeable(_episode_model(states))
+    assert (r is not None) is (search_inliers == 0)
+    if r is None:
+        assert late.decisions["episode match refused: search walls only"] >= 1
+
+
+def _look_alike_walk(walls, T_true, w: float | None, laps=3):
+    """The walk ``laps`` times over, each view looking like the stored state where it stands
+    at cosine distance ``1 - 1/sqrt(1 + w**2)`` (0.106 for w = 0.5: beyond the threshold,
+    so no feature match), or (``w`` None) like none of them (0.646)."""
+    inv = se2.inverse(T_true)
+    out = []
+    for _ in range(laps):
+        for k, pose in enumerate(WALK):
+            f = NO_MATCH if w is None else unit(k) + w * unit(k + 1)
+            f = (f / np.linalg.norm(f)).astype(np.float32)
+            out.append(AbstractState(f, se2.compose(inv, pose), (), cast(walls, pose)))
+    return out
+
+
+def test_appearance_compares_each_view_with_the_stored_states_where_it_stands():
+    T_true = (2.0, -1.0, 0.7)
+    memory = Memory({"a-e000": stored_model()}, threshold=0.05)
+    rel = Relocalizer(memory, RelocationConfig())
+    run(rel, _look_alike_walk(ROOM_A, T_true, 0.5, laps=1))
+    look, views = rel.appearance("a-e000", T_true)
+    assert views == len(WALK) and look == pytest.approx(1 - 1 / math.sqrt(1.25), abs=1e-3)
+    assert rel.appearance("a-e000", (T_true[0] + 20, T_true[1], T_true[2])) == (None, 0)
+    turned = rel.appearance("a-e000", (*T_true[:2], T_true[2] + math.pi))
+    assert turned[1] < views  # a view facing the other way is not compared
+    far = Relocalizer(memory, RelocationConfig())
+    run(far, _look_alike_walk(ROOM_A, T_true, None, laps=1))
+    assert far.appearance("a-e000", T_true)[0] == pytest.approx(1 - 1 / math.sqrt(DIM), abs=1e-3)
+
+
+@pytest.mark.parametrize("w, search_look, stands", [
+    (0.5, 0.0, True), (0.5, 3.0, True), (None, 3.0, False), (None, 0.0, True)])
+def test_search_look_asks_the_place_to_look_like_what_the_memory_saw_there(w, search_look,
+                                                                           stands):
+    """The walls fit in both cases; with ``search_look`` the scan search's placement must
+    also look like the stored states there, within 3 x the threshold (0.15): views at
+    0.106 from them do, views like none of them (0.646: a room of that shape elsewhere)
+    do not. The same holds for the late search at the episode's end."""
+    T_true = (2.0, -1.0, 0.7)
+    memory = Memory({"a-e000": stored_model()}, threshold=0.05)
+    rel = Relocalizer(memory, RelocationConfig(search_look=search_look, **SEARCH))
+    r = run(rel, _look_alike_walk(ROOM_A, T_true, w))
+    assert (r is not None) is stands
+    if stands:
+        assert r.source == "scan search" and r.look is not None and r.look_views >= 3
+        assert math.dist(r.transform[:2], T_true[:2]) < 0.05
+    else:
+        assert rel.decisions["scan search unlike"] >= 1
+    states = _look_alike_walk(ROOM_A, T_true, w, laps=1)
+    late = Relocalizer(memory, RelocationConfig(late_search=2, search_look=search_look))
+    assert run(late, states) is None
+    r = late.mergeable(_episode_model(states))
+    assert (r is not None) is stands
+    if not stands:
+        assert late.decisions["episode match refused: search unlike"] >= 1
+
+
 def test_the_late_search_does_not_merge_another_house():
     m = AbstractModel(DIM, model_id="h1-e000", extractor="toy", scan=SCAN)
     for k, pose in enumerate(WALK + EAST_WALK):

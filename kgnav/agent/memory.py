@@ -13,6 +13,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from contextlib import contextmanager
 
+import numpy as np
+
 from kgnav.memory.model import AbstractModel
 from kgnav.memory.relocator import Match, Relocator
 
@@ -26,6 +28,7 @@ class Memory:
         self.relocator = Relocator(threshold=threshold, backend=backend).fit(
             self.models.values())
         self._geometry: dict = {}
+        self._looks: dict = {}
 
     @property
     def threshold(self) -> float:
@@ -58,6 +61,19 @@ class Memory:
             self._geometry[model_id] = StoredGeometry.of(self.models[model_id])
         return self._geometry[model_id]
 
+    def looks(self, model_id: str) -> tuple[np.ndarray, np.ndarray]:
+        """The model's state poses ``(n, 3)`` and unit feature vectors ``(n, d)``, built
+        once: what each stored state saw from where, to compare with what an episode sees
+        from the same place (:meth:`~kgnav.agent.relocation.Relocalizer.appearance`)."""
+        if model_id not in self._looks:
+            m = self.models[model_id]
+            ids, feats = m.state_features()
+            poses = np.array([m.pose(s) for s in ids], float).reshape(-1, 3)
+            feats = np.asarray(feats, np.float32)
+            norms = np.linalg.norm(feats, axis=1, keepdims=True)
+            self._looks[model_id] = (poses, feats / np.maximum(norms, 1e-12))
+        return self._looks[model_id]
+
     def update(self, model: AbstractModel) -> None:
         """Take ``model`` in (replacing a model of its id): indexed again, its occupancy
         rebuilt on next use. A memory shared by an episode's agents must not change; this is
@@ -65,6 +81,7 @@ class Memory:
         self.models[model.model_id] = model
         self.relocator.add(model)
         self._geometry.pop(model.model_id, None)
+        self._looks.pop(model.model_id, None)
 
     @contextmanager
     def without(self, model_id: str):

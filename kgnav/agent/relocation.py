@@ -80,10 +80,28 @@ class RelocationConfig:
     # at the episode's end, the late match also judges this many best distinct placements of
     # the whole episode's profiles in each of the search_models models (0: off)
     late_search: int = 0
-    # a scan search's hypothesis is accepted only when at least this many of the episode's
-    # objects (seen twice) find their class there: positive evidence, where walls alone fit
-    # a look-alike room of another house (0: no objects needed, only none contradicting)
+    # a scan search's hypothesis (live, or the late search's) is accepted only when at least
+    # this many of the episode's objects (seen twice) find their class there: positive
+    # evidence, where walls alone fit a look-alike room of another house (0: no objects
+    # needed, only none contradicting)
     search_support: int = 0
+    # ... and only when the walls fit it at least this well (share of inliers; the live
+    # verification's, and the whole episode's for the late search's): rooms of one shape in
+    # other houses fit MiniWorld's calib episodes at 0.77-0.92, the right rooms at 0.85-1.00
+    # (33 of 35 at 0.95 or more), and kgnav's train houses' at 0.96-1.00 under locobot noise
+    search_inliers: float = 0.95
+    # what the episode sees against what the memory saw from the same place: a placement's
+    # appearance (Relocalizer.appearance) is the median, over the recent views that stored
+    # states stood near (within look_radius m and look_heading degrees once placed), of the
+    # cosine distance to the best-looking of those states ...
+    look_radius: float = 1.0
+    look_heading: float = 30.0
+    # ... and a scan search's hypothesis (live, or the late search's) is accepted only when
+    # at least look_views views have stored states near and their appearance is within
+    # search_look times the relocation threshold: walls place a look-alike room of another
+    # house as well as the right one, its walls and floors do not look the same (0: off)
+    search_look: float = 0.0
+    look_views: int = 3
     max_correction: tuple[float, float] = (1.0, 20.0)  # ICP may move T this much (m, degrees)
     landmark_radius: float = 1.5  # landmark pairing radius for checks and refinement (0: off)
     refine_pairs: int = 60  # most recent landmark pairs used to refine
@@ -174,6 +192,10 @@ class Relocation:
     late: bool = False  # found at the episode's end from all its states, not while navigating
     source: str = "features"  # what proposed it: "features" or "scan search" (no state, no
     # distance: ``state_id`` is "" and ``distance`` NaN, as for a late match)
+    # its appearance when accepted (Relocalizer.appearance): the median cosine distance of
+    # the recent views to stored states near where it places them, and how many views had one
+    look: float | None = None
+    look_views: int = 0
     # the transform as accepted at ``step``: ``transform`` is refined as the episode goes on
     # (and, with drift, follows the odometry away from ``at``), so only this one says how
     # precisely the relocation placed the agent where it was made
@@ -296,6 +318,7 @@ class Relocalizer:
         self._pending: list[tuple] = []  # (step, Match, T) found by the scan search
         self._last_search = 0
         self._search_refuted: set[str] = set()  # models a scan search relocation was undone in
+        self._views: list = []  # (pose, unit features) of every state seen, for appearance
 
     # ------------------------------------------------------------------ proposing
     def observe(self, step: int, state, scan, episode=None) -> Relocation | None:
@@ -306,6 +329,8 @@ class Relocalizer:
             self._recent.append((state.pose, np.asarray(state.ranges, np.float32), scan))
             self._all.append(self._recent[-1])
             self._steps.append(int(step))
+        f = np.asarray(state.features, np.float32)
+        self._views.append((tuple(state.pose), f / max(float(np.linalg.norm(f)), 1e-12)))
         if self.relocation is not None:
             if (self.config.bridge_interval > 0
                     and step - self._last_bridge >= self.config.bridge_interval):
@@ -365,6 +390,19 @@ class Relocalizer:
                 self._failed.append((step, m.model_id, tuple(T)))
                 self._drop_pending(m.model_id, T)
                 continue
+            if source == "scan search" and v.inliers < self.config.search_inliers:
+                # fits, but not as a room fits itself: a room of that shape elsewhere
+                self.decisions["scan search walls only"] += 1
+                self._failed.append((step, m.model_id, tuple(T)))
+                self._drop_pending(m.model_id, T)
+                continue
+            if source == "scan search" and self.config.search_look > 0 and not self._looks_alike(
+                    m.model_id, v.transform):
+                # the walls fit; what stands between them does not look the same
+                self.decisions["scan search unlike"] += 1
+                self._failed.append((step, m.model_id, tuple(T)))
+                self._drop_pending(m.model_id, T)
+                continue
             if best is None or v.inliers > best[1].inliers:
                 best = (m, v, source)
             if not self.config.geometry:
@@ -374,12 +412,14 @@ class Relocalizer:
         m, v, source = best
         if source == "scan search":
             self.decisions["scan search accepted"] += 1
+        look, looked = self.appearance(m.model_id, v.transform)
         self.relocation = Relocation(step, m.model_id, m.state_id, m.distance,
                                      tuple(float(x) for x in v.transform),
                                      (float(state.pose[0]), float(state.pose[1])),
                                      inliers=round(v.inliers, 3) if self.config.geometry else None,
                                      conflicts=round(v.conflicts, 3) if self.config.geometry
-                                     else None, points=v.points, source=source)
+                                     else None, points=v.points, source=source,
+                                     look=look, look_views=looked)
         self._last_bridge = step
         stored = self.memory.model(m.model_id)
         nodes = stored.graph.nodes
@@ -465,6 +505,44 @@ class Relocalizer:
             if not any(p[1].model_id == model_id and self._agree(p[2], T)
                        for p in self._pending):
                 self._pending.append((step, Match(model_id, "", math.nan), T))
+
+    def appearance(self, model_id: str, T, views=None) -> tuple[float | None, int]:
+        """How the ``views`` (default: the ``recent_scans`` latest; ``(pose, unit
+        features)``), placed in ``model_id`` by ``T``, look against the stored states near
+        them (within ``look_radius`` and ``look_heading``): the median over the views that
+        have any of the cosine distance to the best-looking one (None when none has), and
+        how many views had one. The right place looks like what the memory saw there; a room
+        of the same shape elsewhere, its walls and floor of other textures, does not."""
+        c = self.config
+        views = self._views[-c.recent_scans:] if views is None else views
+        poses, feats = self.memory.looks(model_id)
+        if not views or not len(poses):
+            return None, 0
+        P = np.array([v[0] for v in views], float)
+        V = np.stack([v[1] for v in views])
+        cos, sin = math.cos(T[2]), math.sin(T[2])
+        qx = T[0] + cos * P[:, 0] - sin * P[:, 1]
+        qy = T[1] + sin * P[:, 0] + cos * P[:, 1]
+        near = np.hypot(qx[:, None] - poses[None, :, 0],
+                        qy[:, None] - poses[None, :, 1]) <= c.look_radius
+        turn = (P[:, 2:3] + T[2] - poses[None, :, 2] + math.pi) % (2 * math.pi) - math.pi
+        near &= np.abs(turn) <= math.radians(c.look_heading)
+        have = near.any(axis=1)
+        if not have.any():
+            return None, 0
+        sims = np.where(near[have], V[have] @ feats.T, -np.inf).max(axis=1)
+        return round(float(np.median(1.0 - sims)), 4), int(have.sum())
+
+    def _spread_views(self, most: int = 200) -> list:
+        """At most ``most`` of the episode's views, evenly spread: the whole episode's."""
+        return self._views[::max(1, -(-len(self._views) // most))]
+
+    def _looks_alike(self, model_id: str, T, views=None) -> bool:
+        """Whether ``T`` into ``model_id`` passes the ``search_look`` check."""
+        c = self.config
+        look, looked = self.appearance(model_id, T, views)
+        return (look is not None and looked >= c.look_views
+                and look <= c.search_look * self.memory.threshold)
 
     def _objects_refute(self, episode, model_id: str, T) -> bool:
         """Whether the ``episode``'s objects refute ``T`` into ``model_id``: enough of them
@@ -785,11 +863,13 @@ class Relocalizer:
                 r = None
                 self.correction = None
         hyps: dict[str, list] = {mid: [b.transform] for mid, b in self.bridges.items()}
+        searched: set[tuple] = set()  # (model, transform) proposed by the late scan search
         if episode is not None and c.late_match:
             for mid, Ts in self._episode_hypotheses(episode, refused).items():
                 hyps.setdefault(mid, []).extend(Ts)
             for mid, Ts in self._searched_hypotheses(scans, refused).items():
                 hyps.setdefault(mid, []).extend(Ts)
+                searched.update((mid, tuple(T)) for T in Ts)
         found: dict[str, Verdict] = {}
         bent: dict[str, tuple[Verdict, Correction]] = {}  # late matches made by bending
         tried: set[str] = set()
@@ -804,6 +884,20 @@ class Relocalizer:
                     v = self._bent_verdict(mid, T, v, episode)
                     if v.ok:
                         bent[mid], self.correction = (v, self.correction), None
+                if v.ok and (mid, tuple(T)) in searched:
+                    # proposed by the walls alone, as a live scan search's hypothesis is
+                    if v.inliers < c.search_inliers:
+                        v = Verdict(False, "search walls only", v.transform, v.inliers,
+                                    v.conflicts, v.points)
+                    elif (c.search_support > 0 and self.object_support(episode, mid,
+                                                                     v.transform)[1]
+                            < c.search_support):
+                        v = Verdict(False, "search unsupported", v.transform, v.inliers,
+                                    v.conflicts, v.points)
+                    elif c.search_look > 0 and not self._looks_alike(
+                            mid, v.transform, self._spread_views()):
+                        v = Verdict(False, "search unlike", v.transform, v.inliers,
+                                    v.conflicts, v.points)
                 if not v.ok:
                     self.decisions[f"episode match refused: {v.reason}"] += 1
                 elif mid not in found or _margin(v) > _margin(found[mid]):
@@ -815,10 +909,11 @@ class Relocalizer:
         if r is None and found and c.late_match:
             mid = max(sorted(found), key=lambda m: _margin(found[m]))
             v = found.pop(mid)
+            look, looked = self.appearance(mid, v.transform, self._spread_views())
             r = self.late = Relocation(len(self._all), mid, "", math.nan, v.transform, (0.0, 0.0),
                                        inliers=round(v.inliers, 3),
                                        conflicts=round(v.conflicts, 3), points=v.points,
-                                       late=True)
+                                       late=True, look=look, look_views=looked)
             self.decisions["late match"] += 1
             # bent onto that model, the bend is the merge's (a rigid late match is bent below)
             if mid in bent and bent[mid][0] is v:

@@ -627,6 +627,8 @@ def _relocation_fields(gt: _GroundTruth, reloc) -> dict:
            "checked": reloc.checked, "supported": reloc.supported}
     if reloc.inliers is not None:
         out.update(inliers=reloc.inliers, conflicts=reloc.conflicts, points=reloc.points)
+    if reloc.look is not None:  # how the place looked against what the memory saw there
+        out.update(look=reloc.look, look_views=reloc.look_views)
     return {**out, **_relocation_error(gt, reloc.model_id, reloc.made,
                                        reloc.at, _at_step(reloc))}
 
