@@ -6,7 +6,10 @@ or the same room turned round (a "rotated twin"), match too, and a wrong merge d
 later episode in that house. :class:`Relocalizer` therefore
 
 1. **proposes** hypotheses each step from the ``top_k`` stored states nearest in feature space
-   (within the threshold), each giving a frame transform ``T`` (episode → model);
+   (within the threshold), each giving a frame transform ``T`` (episode → model), and, with
+   ``scan_search``, from where the recent range profiles fit the models the views looked most
+   like (:mod:`kgnav.agent.scan_search`): those must fit as a room fits itself
+   (``search_inliers``), since a room of the same shape elsewhere fits nearly as well;
 2. **verifies** each against geometry (:meth:`Relocalizer.verify`): the obstacle end points of
    the episode's recent range profiles, mapped by ``T``, must land on obstacles the stored model
    saw (inliers) and not inside space it saw free (conflicts), and the stored obstacles must not
@@ -70,16 +73,15 @@ class RelocationConfig:
     # every this many steps while not relocated, search the stored models the views looked
     # most like for where the recent range profiles fit (kgnav.agent.scan_search), as well as
     # proposing from feature matches: a place the memory saw from afar, or whose nearest
-    # looking states are look-alikes, is found by its walls (0: off, the default: on
-    # MiniWorld's look-alike rooms it merged into other houses; docs/memory.md, "The scan
-    # search")
-    scan_search: int = 0
+    # looking states are look-alikes, is found by its walls (0: off, as in the paper;
+    # docs/memory.md, "The scan search")
+    scan_search: int = 10
     search_models: int = 2  # models searched each time (the most looked like)
     search_scans: int = 20  # recent profiles needed before searching
     search_refine: int = 3  # best distinct placements aligned and judged per model searched
     # at the episode's end, the late match also judges this many best distinct placements of
     # the whole episode's profiles in each of the search_models models (0: off)
-    late_search: int = 0
+    late_search: int = 2
     # a scan search's hypothesis (live, or the late search's) is accepted only when at least
     # this many of the episode's objects (seen twice) find their class there: positive
     # evidence, where walls alone fit a look-alike room of another house (0: no objects
