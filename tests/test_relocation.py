@@ -626,25 +626,31 @@ def test_the_late_search_merges_an_episode_no_state_matched(late_search):
     assert rel.decisions["late search"] == 1 and rel.decisions["late match"] == 1
 
 
+def _furnished_room(T_true, furnished: bool):
+    """The stored room with a bed, a chair and a monitor (or bare), and those three objects
+    as an episode whose frame maps into the room's by ``T_true`` sees them (or none)."""
+    spots = [(1.0, 1.0, 0.5), (5.0, 1.0, 0.5), (5.0, 3.0, 0.5)]
+    classes = ("bed", "chair", "tv_monitor")
+    inv = se2.inverse(T_true)
+    seen = tuple(Detection(c, (*se2.apply_to_point(inv, x, y), z))
+                 for c, (x, y, z) in zip(classes, spots, strict=True))
+    stored = stored_model(objects=tuple(
+        Detection(c, p) for c, p in zip(classes, spots, strict=True)) if furnished else ())
+    return Memory({"a-e000": stored}, threshold=0.05), seen if furnished else ()
+
+
 @pytest.mark.parametrize("support", [0, 3, 4])
 def test_search_support_holds_for_the_late_search_too(support):
     """The late search's placements are the walls' alone, as a live scan search's are:
     with ``search_support`` the merge asks as many of the episode's objects to find their
     class there (three do in the furnished room, none in the bare one)."""
     T_true = (2.0, -1.0, 0.7)
-    spots = [(1.0, 1.0, 0.5), (5.0, 1.0, 0.5), (5.0, 3.0, 0.5)]
-    classes = ("bed", "chair", "tv_monitor")
-    inv = se2.inverse(T_true)
-    seen = tuple(Detection(c, (*se2.apply_to_point(inv, x, y), z))
-                 for c, (x, y, z) in zip(classes, spots, strict=True))
     for furnished in (True, False):
-        stored = stored_model(objects=tuple(
-            Detection(c, p) for c, p in zip(classes, spots, strict=True)) if furnished else ())
-        memory = Memory({"a-e000": stored}, threshold=0.05)
+        memory, seen = _furnished_room(T_true, furnished)
         states = _unmatched_walk(ROOM_A, T_true, laps=1)
         episode = AbstractModel(DIM, model_id="a-e001", extractor="toy", scan=SCAN)
         for k, s in enumerate(states):
-            episode.add_state(s.features, s.pose, seen if furnished else (), step=k,
+            episode.add_state(s.features, s.pose, seen, step=k,
                               ranges=s.ranges)
         rel = Relocalizer(memory, RelocationConfig(late_search=2, search_support=support))
         assert run(rel, states) is None
@@ -825,16 +831,9 @@ def test_search_support_asks_the_episode_objects_for_positive_evidence(support):
     search's hypothesis, so it stands with ``search_support`` up to 3 and waits at 4; in a
     bare room with no object it stands only with 0 (walls alone)."""
     T_true = (2.0, -1.0, 0.7)
-    spots = [(1.0, 1.0, 0.5), (5.0, 1.0, 0.5), (5.0, 3.0, 0.5)]
-    classes = ("bed", "chair", "tv_monitor")
-    inv = se2.inverse(T_true)
-    seen = tuple(Detection(c, (*se2.apply_to_point(inv, x, y), z))
-                 for c, (x, y, z) in zip(classes, spots, strict=True))
     for furnished in (True, False):
-        stored = stored_model(objects=tuple(
-            Detection(c, p) for c, p in zip(classes, spots, strict=True)) if furnished else ())
-        memory = Memory({"a-e000": stored}, threshold=0.05)
-        states = [AbstractState(s.features, s.pose, seen if furnished else (), s.ranges)
+        memory, seen = _furnished_room(T_true, furnished)
+        states = [AbstractState(s.features, s.pose, seen, s.ranges)
                   for s in _unmatched_walk(ROOM_A, T_true)]
         episode = AbstractModel(DIM, model_id="a-e001", extractor="toy", scan=SCAN)
         for k, s in enumerate(states[:2]):

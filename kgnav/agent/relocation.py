@@ -379,32 +379,13 @@ class Relocalizer:
             if self.config.geometry and self.config.unique:
                 alt = self.ambiguity(m.model_id, v)
                 if alt is not None:  # a corridor, a symmetric room, a repeated room
-                    self.decisions["ambiguous"] += 1
-                    self._failed.append((step, m.model_id, tuple(T)))
-                    self._drop_pending(m.model_id, T)
+                    self._refuse(step, m.model_id, T, "ambiguous")
                     continue
-            if (source == "scan search" and episode is not None
-                    and self._objects_refute(episode, m.model_id, v.transform)):
-                # walls alone fit a look-alike room of another house as well as the right
-                # one; its furniture stands elsewhere (the checks that undo a relocation,
-                # made before accepting it: no stored state vouches for this place)
-                self.decisions["scan search refuted by objects"] += 1
-                self._failed.append((step, m.model_id, tuple(T)))
-                self._drop_pending(m.model_id, T)
-                continue
-            if source == "scan search" and v.inliers < self.config.search_inliers:
-                # fits, but not as a room fits itself: a room of that shape elsewhere
-                self.decisions["scan search walls only"] += 1
-                self._failed.append((step, m.model_id, tuple(T)))
-                self._drop_pending(m.model_id, T)
-                continue
-            if source == "scan search" and self.config.search_look > 0 and not self._looks_alike(
-                    m.model_id, v.transform):
-                # the walls fit; what stands between them does not look the same
-                self.decisions["scan search unlike"] += 1
-                self._failed.append((step, m.model_id, tuple(T)))
-                self._drop_pending(m.model_id, T)
-                continue
+            if source == "scan search":
+                refusal = self._search_refusal(episode, m.model_id, v)
+                if refusal is not None:
+                    self._refuse(step, m.model_id, T, refusal)
+                    continue
             if best is None or v.inliers > best[1].inliers:
                 best = (m, v, source)
             if not self.config.geometry:
@@ -507,6 +488,28 @@ class Relocalizer:
             if not any(p[1].model_id == model_id and self._agree(p[2], T)
                        for p in self._pending):
                 self._pending.append((step, Match(model_id, "", math.nan), T))
+
+    def _refuse(self, step: int, model_id: str, T, decision: str) -> None:
+        """Count a verified hypothesis refused as ``decision``; not judged again for a
+        few steps."""
+        self.decisions[decision] += 1
+        self._failed.append((step, model_id, tuple(T)))
+        self._drop_pending(model_id, T)
+
+    def _search_refusal(self, episode, model_id: str, v: Verdict) -> str | None:
+        """Why a scan search's verified hypothesis ``v`` is refused, or None: walls alone
+        fit a look-alike room of another house as well as the right one, so its furniture
+        must not stand elsewhere (the checks that undo a relocation, made before accepting
+        it: no stored state vouches for this place), the walls must fit as a room fits
+        itself, and (``search_look``) what stands between them must look the same."""
+        c = self.config
+        if episode is not None and self._objects_refute(episode, model_id, v.transform):
+            return "scan search refuted by objects"
+        if v.inliers < c.search_inliers:
+            return "scan search walls only"
+        if c.search_look > 0 and not self._looks_alike(model_id, v.transform):
+            return "scan search unlike"
+        return None
 
     def appearance(self, model_id: str, T, views=None) -> tuple[float | None, int]:
         """How the ``views`` (default: the ``recent_scans`` latest; ``(pose, unit
@@ -889,17 +892,14 @@ class Relocalizer:
                 if v.ok and (mid, tuple(T)) in searched:
                     # proposed by the walls alone, as a live scan search's hypothesis is
                     if v.inliers < c.search_inliers:
-                        v = Verdict(False, "search walls only", v.transform, v.inliers,
-                                    v.conflicts, v.points)
+                        v = replace(v, ok=False, reason="search walls only")
                     elif (c.search_support > 0 and self.object_support(episode, mid,
                                                                      v.transform)[1]
                             < c.search_support):
-                        v = Verdict(False, "search unsupported", v.transform, v.inliers,
-                                    v.conflicts, v.points)
+                        v = replace(v, ok=False, reason="search unsupported")
                     elif c.search_look > 0 and not self._looks_alike(
                             mid, v.transform, self._spread_views()):
-                        v = Verdict(False, "search unlike", v.transform, v.inliers,
-                                    v.conflicts, v.points)
+                        v = replace(v, ok=False, reason="search unlike")
                 if not v.ok:
                     self.decisions[f"episode match refused: {v.reason}"] += 1
                 elif mid not in found or _margin(v) > _margin(found[mid]):
