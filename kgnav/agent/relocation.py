@@ -36,6 +36,7 @@ import numpy as np
 
 from kgnav.agent import scan_search
 from kgnav.common import se2
+from kgnav.common.edt import distance_to_zero
 from kgnav.memory.constants import JOIN_EPISODE
 from kgnav.memory.evidence import MISS_RANGE, ScanTable
 from kgnav.memory.geometry import OccupancyGrid, occupancy_from_scans
@@ -230,8 +231,7 @@ class StoredGeometry:
         obst = self.obstacle = grid.obstacle
         self.known = (grid.free > 0) | obst
         if obst.any():
-            dist = cv2.distanceTransform((~obst).astype(np.uint8), cv2.DIST_L2,
-                                         cv2.DIST_MASK_PRECISE)
+            dist = distance_to_zero(~obst)
             self.dist = dist * grid.resolution
             # d(distance)/dx and /dy in metres per metre (columns are x, rows y)
             self.grad_y, self.grad_x = np.gradient(dist.astype(np.float32))

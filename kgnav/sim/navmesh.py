@@ -21,6 +21,7 @@ import numpy as np
 import skfmm
 
 from kgnav.common.classes import OBJECT_CLASSES
+from kgnav.common.edt import distance_to_zero
 from kgnav.sim.scene import AGENT_RADIUS, GRID_RES, Scene, rasterize_box
 
 SUCCESS_DISTANCE = 1.0  # m, the paper's success threshold
@@ -70,7 +71,7 @@ class NavMap:
         the largest connected free region."""
         occ = np.asarray(occupied, bool)
         # distance (cells) from each free cell centre to the nearest obstacle cell
-        dist = cv2.distanceTransform((~occ).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        dist = distance_to_zero(~occ)
         # an obstacle cell's edge is half a cell nearer than its centre
         free = (dist - 0.5) * GRID_RES >= agent_radius
         n, lab = cv2.connectedComponents(free.astype(np.uint8), connectivity=8)
