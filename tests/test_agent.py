@@ -16,7 +16,7 @@ from kgnav.agent.loop import AgentConfig, ObjectNavAgent
 from kgnav.agent.mapping import MapBuilder
 from kgnav.agent.memory import Memory
 from kgnav.agent.oracle import OracleAgent
-from kgnav.agent.planner import FMMPlanner, fmm_distance
+from kgnav.agent.planner import FMMPlanner, fmm_distance, reachable
 from kgnav.agent.policy import FrontierPolicy, cooccurrence, frontiers, make_policy
 from kgnav.agent.segmentation import make_segmenter
 from kgnav.agent.state_creator import StateCreator
@@ -127,6 +127,24 @@ def test_fmm_distance_goes_round_walls():
     assert np.isinf(d[20, 5])
     trav[20, :] = False
     assert np.isinf(fmm_distance(trav, goal)[10, 5])
+
+
+@settings(max_examples=150, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), h=st.integers(2, 30), w=st.integers(2, 30),
+       walls=st.floats(0.1, 0.6), slow=st.booleans())
+def test_reachable_is_where_fast_marching_ends_finite(seed, h, w, walls, slow):
+    # the planner skips a march that reachable() says cannot reach the agent: the two must
+    # agree exactly, with and without a speed map
+    rng = np.random.default_rng(seed)
+    trav = rng.random((h, w)) > walls
+    goal = np.zeros((h, w), bool)
+    for _ in range(int(rng.integers(1, 4))):
+        goal[rng.integers(h), rng.integers(w)] = True
+    cell = (int(rng.integers(h)), int(rng.integers(w)))
+    trav[cell] = True
+    speed = rng.uniform(0.25, 1.0, (h, w)) if slow else None
+    finite = math.isfinite(fmm_distance(trav, goal, speed=speed)[cell])
+    assert reachable(trav | goal, cell, goal) == finite
 
 
 def test_planner_reaches_turns_and_stops():

@@ -69,12 +69,31 @@ def fmm_distance(traversable: np.ndarray, targets: np.ndarray, clearance: float 
             d = skfmm.travel_time(np.ma.MaskedArray(phi, ~free), speed, dx=1.0)
         else:
             d = skfmm.distance(np.ma.MaskedArray(phi, ~free), dx=1.0)
-    except ValueError:  # no zero contour reachable
+    except ValueError:  # no free cell borders a target: only the targets themselves
+        out[targets] = 0.0
         return out
     vals = np.ma.filled(d.astype(float), np.inf) + 0.5
     vals[targets] = 0.0
     out[free] = vals[free]
     return out
+
+
+def reachable(free: np.ndarray, cell: tuple[int, int], cells: np.ndarray) -> bool:
+    """Whether a cell of the mask ``cells`` lies in the 4-connected region of ``free`` that
+    holds ``cell``: exactly when Fast Marching between them over ``free`` ends finite (its
+    stencil is 4-connected). One connected-components pass costs a small part of a march,
+    and the planner's marches that do not reach the agent (walled in by its own inflated
+    map, or a goal sealed off) are about half of all it would run.
+
+    >>> free = np.ones((3, 5), bool); free[:, 2] = False
+    >>> goal = np.zeros((3, 5), bool); goal[1, 4] = True
+    >>> reachable(free, (1, 0), goal), reachable(free | goal, (1, 3), goal)
+    (False, True)
+    """
+    if not free[cell]:
+        return False
+    _, lab = cv2.connectedComponents(free.astype(np.uint8), connectivity=4)
+    return bool((lab[cells] == lab[cell]).any())
 
 
 def descend(field: np.ndarray, i: int, j: int, steps: int) -> list[tuple[int, int]]:
@@ -256,18 +275,18 @@ class FMMPlanner:
         out (a doorway its range profiles caught only at an angle looks closed); last, when
         the agent is :meth:`sealed` in, with obstacles not inflated (``bare``)."""
         speed = self._speed(m, crop)
-        dist = fmm_distance(self.traversable(m, crop, agent), targets, speed=speed)
-        ai, aj = agent[0] - crop[0], agent[1] - crop[2]
-        if not math.isfinite(dist[ai, aj]):
-            dist = fmm_distance(self.traversable(m, crop, agent, squeeze=True), targets,
-                                speed=speed)
-        if not math.isfinite(dist[ai, aj]) and m.prior_obstacle is not None:
-            dist = fmm_distance(self.traversable(m, crop, agent, prior=False), targets,
-                                speed=speed)
-        if not math.isfinite(dist[ai, aj]) and self.sealed(m, crop, agent, prior=False):
-            dist = fmm_distance(self.traversable(m, crop, agent, prior=False, bare=True),
+        here = (agent[0] - crop[0], agent[1] - crop[2])
+        tries = [{}, {"squeeze": True}]
+        if m.prior_obstacle is not None:
+            tries.append({"prior": False})
+        for kw in tries:
+            trav = self.traversable(m, crop, agent, **kw)
+            if reachable(trav | targets, here, targets):  # else a march would end inf here
+                return fmm_distance(trav, targets, speed=speed)
+        if self.sealed(m, crop, agent, prior=False):
+            return fmm_distance(self.traversable(m, crop, agent, prior=False, bare=True),
                                 targets, speed=speed)
-        return dist
+        return np.full(targets.shape, np.inf)
 
     def sealed(self, m: EpisodeMap, crop, agent: tuple[int, int], *, prior: bool = True
                ) -> bool:

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from kgnav.agent.mapping import EpisodeMap
-from kgnav.agent.planner import FMMPlanner, fmm_distance
+from kgnav.agent.planner import FMMPlanner, fmm_distance, reachable
 from kgnav.registry import Registry
 
 
@@ -162,15 +162,17 @@ class FrontierPolicy:
         src[agent[0] - i0, agent[1] - j0] = True
         sub = lab[i0:i1, j0:j1]
         front = sub > 0
-        dist_m = fmm_distance(planner.traversable(m, crop, agent, prior=prior), src)
+        here = (agent[0] - i0, agent[1] - j0)
         # walled in by its own map: squeeze, and when even that seals it, the bare obstacles
-        if np.isinf(dist_m[front]).all():
-            dist_m = fmm_distance(planner.traversable(m, crop, agent, squeeze=True,
-                                                      prior=prior), src)
-        if np.isinf(dist_m[front]).all() and planner.sealed(m, crop, agent, prior=prior):
-            dist_m = fmm_distance(planner.traversable(m, crop, agent, bare=True,
-                                                      prior=prior), src)
-        dist_m = dist_m * m.resolution
+        for kw in ({}, {"squeeze": True}, {"bare": True}):
+            if kw.get("bare") and not planner.sealed(m, crop, agent, prior=prior):
+                return None
+            trav = planner.traversable(m, crop, agent, prior=prior, **kw)
+            if reachable(trav, here, front):  # else no frontier would get a distance
+                break
+        else:
+            return None
+        dist_m = fmm_distance(trav, src) * m.resolution
         ok = front & np.isfinite(dist_m) & (dist_m >= self.min_distance)
         if not ok.any():
             ok = front & np.isfinite(dist_m)

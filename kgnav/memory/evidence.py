@@ -177,7 +177,7 @@ def object_evidence(model: AbstractModel, objects: Iterable[str] | None = None,
     if table is None and ids and model.scan is not None:
         table = ScanTable(model)
     n = len(table) if table is not None else 0
-    rivals = _Rivals(model) if ids else None
+    rivals = None  # built on the first object the cache cannot answer: it reads them all
     out = {}
     for o in ids:
         d = g.nodes[o]
@@ -195,6 +195,8 @@ def object_evidence(model: AbstractModel, objects: Iterable[str] | None = None,
         missed = 0
         if table is not None:
             missed = sum(1 for s in table.covering(d["x"], d["y"], miss_range) if s not in seers)
+        if rivals is None:
+            rivals = _Rivals(model)
         out[o] = Evidence(len(seers), len(episodes), missed, float(d["score"]),
                           rivals.views(o, d), weak)
         if cache is not None:
