@@ -321,6 +321,7 @@ class Relocalizer:
         self._pending: list[tuple] = []  # (step, Match, T) found by the scan search
         self._last_search = 0
         self._search_refuted: set[str] = set()  # models a scan search relocation was undone in
+        self._geometry_memo: dict[tuple, tuple] = {}  # see _episode_geometry
         self._views: list = []  # (pose, unit features) of every state seen, for appearance
 
     # ------------------------------------------------------------------ proposing
@@ -1215,11 +1216,23 @@ class Relocalizer:
         return out
 
     def _episode_geometry(self, scans):
+        # the checks at an episode's end ask for the same scans' geometry a dozen times
+        # (verification, ambiguity, each hypothesis): the last few answers are kept, for
+        # the very same scan objects only
+        key = tuple(map(id, scans))
+        hit = self._geometry_memo.get(key)
+        if hit is not None and all(a is b for a, b in zip(hit[0], scans, strict=True)):
+            return hit[1], hit[2]
         ends, fans = [], []
         for pose, r, scan in scans:
             ends.append(scan.endpoints(pose, r))
             fans.append(scan.fan(pose, r, margin=0.35))
-        return np.concatenate(ends) if ends else np.zeros((0, 2)), fans
+        ends = np.concatenate(ends) if ends else np.zeros((0, 2))
+        ends.flags.writeable = False  # shared between callers
+        if len(self._geometry_memo) >= 4:
+            self._geometry_memo.pop(next(iter(self._geometry_memo)))
+        self._geometry_memo[key] = (list(scans), ends, fans)
+        return ends, fans
 
     def _judge(self, geo: StoredGeometry, ends, fans, T) -> Verdict:
         c = self.config
