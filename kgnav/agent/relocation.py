@@ -237,7 +237,8 @@ class StoredGeometry:
             self.grad_y, self.grad_x = np.gradient(dist.astype(np.float32))
             # one gather of three values per corner instead of three gathers: sampling is
             # most of an alignment's time
-            self._field = np.stack([self.dist, self.grad_x, self.grad_y], axis=-1)
+            # (flat: a row gather by one index is twice as fast as a 2-d fancy index)
+            self._field = np.stack([self.dist, self.grad_x, self.grad_y], axis=-1).reshape(-1, 3)
         else:
             self.dist = np.full(obst.shape, np.inf, np.float32)
             self.grad_x = self.grad_y = None
@@ -257,10 +258,9 @@ class StoredGeometry:
             j, i = x.astype(int), y.astype(int)
             a, b = x - j, y - i
             w00, w01, w10, w11 = (1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b
-
-            f = self._field
-            v = (w00[:, None] * f[i, j] + w01[:, None] * f[i, j + 1]
-                 + w10[:, None] * f[i + 1, j] + w11[:, None] * f[i + 1, j + 1])
+            f, k = self._field, i * w + j
+            v = (w00[:, None] * f.take(k, 0) + w01[:, None] * f.take(k + 1, 0)
+                 + w10[:, None] * f.take(k + w, 0) + w11[:, None] * f.take(k + w + 1, 0))
             d[ok], gx[ok], gy[ok] = v[:, 0], v[:, 1], v[:, 2]
         return d, gx, gy
 
