@@ -205,8 +205,7 @@ class RayEngine(Engine):
                     out[where[ref]] = ray.get(ref)
                     bar.update(1)
         except BaseException as exc:  # Ctrl-C or a failed task: stop the round's work
-            for ref in pending:
-                ray.cancel(ref, force=True)
+            _cancel(ray, pending)
             if isinstance(exc, ray.exceptions.RayTaskError):
                 raise exc.cause from None  # the task's own error (a KgnavError stays one)
             if isinstance(exc, ray.exceptions.RayError):
@@ -283,3 +282,16 @@ def check_settings(name: str, workers: int, address: str | None) -> None:
     if address is not None and workers > 1:
         raise KgnavError("workers sets the CPUs of a Ray instance started here; a cluster "
                          "joined at an address brings its own")
+
+
+def _cancel(ray, refs: list, tries: int = 5, wait_s: float = 1.0) -> None:
+    """Cancel ``refs`` and make sure they stopped: a cancel that reaches a task while its
+    worker is still being handed it can be lost (seen on a loaded machine, where a cancelled
+    60-s task then ran to its end and held its CPU), so whatever has not ended a second later
+    is cancelled again, a few times at most."""
+    for _ in range(tries):
+        if not refs:
+            return
+        for ref in refs:
+            ray.cancel(ref, force=True)
+        _, refs = ray.wait(refs, num_returns=len(refs), timeout=wait_s)
