@@ -41,7 +41,7 @@ def disc(radius_cells: int) -> np.ndarray:
 
 
 def fmm_distance(traversable: np.ndarray, targets: np.ndarray, clearance: float = 0.0,
-                 speed: np.ndarray | None = None) -> np.ndarray:
+                 speed: np.ndarray | None = None, narrow: float = 0.0) -> np.ndarray:
     """Geodesic distance in cells from every traversable cell to the nearest target cell.
 
     Target cells read 0 and are always passable; cells that are not traversable or cannot reach
@@ -49,6 +49,9 @@ def fmm_distance(traversable: np.ndarray, targets: np.ndarray, clearance: float 
     cells nearer than that to a non-traversable cell are slower (down to a quarter speed), so
     paths keep off walls and corners instead of grazing them. ``speed`` (same shape, in (0, 1])
     makes it a travel time with that speed per cell (times the clearance slowdown).
+    ``narrow`` > 0 stops the march there: cells whose value would be at least that read
+    ``inf``, every other cell reads exactly what the whole march gives it (Fast Marching
+    settles cells in order of their value), at a fraction of the cost.
 
     >>> trav = np.ones((1, 5), bool); goal = np.zeros((1, 5), bool); goal[0, 0] = True
     >>> half = np.full((1, 5), 0.5)
@@ -66,9 +69,10 @@ def fmm_distance(traversable: np.ndarray, targets: np.ndarray, clearance: float 
             slow = np.clip(room / clearance, 0.25, 1.0)
             speed = slow if speed is None else slow * speed
         if speed is not None:
-            d = skfmm.travel_time(np.ma.MaskedArray(phi, ~free), speed, dx=1.0)
+            d = skfmm.travel_time(np.ma.MaskedArray(phi, ~free), speed, dx=1.0,
+                                  narrow=narrow)
         else:
-            d = skfmm.distance(np.ma.MaskedArray(phi, ~free), dx=1.0)
+            d = skfmm.distance(np.ma.MaskedArray(phi, ~free), dx=1.0, narrow=narrow)
     except ValueError:  # no free cell borders a target: only the targets themselves
         out[targets] = 0.0
         return out

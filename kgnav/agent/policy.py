@@ -172,16 +172,34 @@ class FrontierPolicy:
                 break
         else:
             return None
-        dist_m = fmm_distance(trav, src) * m.resolution
-        ok = front & np.isfinite(dist_m) & (dist_m >= self.min_distance)
-        if not ok.any():
-            ok = front & np.isfinite(dist_m)
+        # First a march that stops BAND m (and what a frontier's bonus can take off its
+        # cost) from the agent: when the cheapest frontier inside costs less than any
+        # frontier beyond could, it is the cheapest of all, and the march over the whole
+        # window (most of the policy's time) is not needed.
+        bonus = self._bonus_bound(sizes)
+        for band in (self.BAND + bonus, 0.0):
+            dist_m = fmm_distance(trav, src, narrow=band / m.resolution) * m.resolution
+            ok = front & np.isfinite(dist_m) & (dist_m >= self.min_distance)
+            if band and not ok.any():
+                continue  # the fallback below must see every frontier
             if not ok.any():
-                return None
-        cost = np.where(ok, self._cost(m, goal_class, sub, sizes, dist_m, crop), np.inf)
-        k = int(np.argmin(cost))
+                ok = front & np.isfinite(dist_m)
+                if not ok.any():
+                    return None
+            cost = np.where(ok, self._cost(m, goal_class, sub, sizes, dist_m, crop), np.inf)
+            k = int(np.argmin(cost))
+            # beyond the band a frontier is more than ``band`` m away: it costs more than
+            # band - bonus
+            if not band or cost.flat[k] < band - bonus:
+                break
         i, j = divmod(k, cost.shape[1])
         return i + i0, j + j0
+
+    BAND = 6.0  # m: the first, narrow march's reach beyond what a bonus can take off
+
+    def _bonus_bound(self, sizes: np.ndarray) -> float:
+        """The most that :meth:`_cost` can take off a frontier's distance (m)."""
+        return abs(self.size_weight) * float(np.abs(sizes).max(initial=0))
 
 
 @register_policy("semantic")
@@ -224,6 +242,9 @@ class SemanticFrontierPolicy(FrontierPolicy):
         # mean related evidence in a (2k+1)^2 window, scaled to "cells of evidence nearby"
         near = cv2.blur(ev, (2 * k + 1, 2 * k + 1)) * (2 * k + 1)
         return cost - self.weight * np.tanh(near / 10.0)
+
+    def _bonus_bound(self, sizes: np.ndarray) -> float:
+        return super()._bonus_bound(sizes) + abs(self.weight)  # tanh is at most 1
 
 
 def cooccurrence(models) -> dict[str, dict[str, float]]:
