@@ -209,6 +209,62 @@ def test_frontier_policy_picks_frontiers_and_gives_up_when_closed():
     assert pol.select(m, (0.0, 0.0, 0.0), "chair", FMMPlanner()) is None
 
 
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), narrow=st.floats(1.0, 40.0), slow=st.booleans())
+def test_a_narrow_march_is_the_whole_march_cut_off(seed, narrow, slow):
+    rng = np.random.default_rng(seed)
+    trav = rng.random((40, 50)) > 0.2
+    goal = np.zeros((40, 50), bool)
+    goal[rng.integers(40), rng.integers(50)] = True
+    speed = rng.uniform(0.25, 1.0, (40, 50)) if slow else None
+    full = fmm_distance(trav, goal, speed=speed)
+    cut = fmm_distance(trav, goal, speed=speed, narrow=narrow)
+    inside = np.isfinite(cut)
+    assert np.array_equal(cut[inside], full[inside])
+    assert not (full < narrow).any() or inside[full < narrow].all()  # (+0.5 of a cell each)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), band=st.sampled_from([0.3, 1.0, 2.0]))
+def test_the_policys_narrow_first_march_picks_what_the_whole_march_picks(seed, band):
+    rng = np.random.default_rng(seed)
+    m = MapBuilder(Camera(), size=160).reset()
+    for _ in range(6):  # explored rooms of random sizes, walls with gaps
+        i, j = rng.integers(20, 120, 2)
+        h, w = rng.integers(8, 40, 2)
+        m.explored[i:i + h, j:j + w] = 1
+        if rng.random() < 0.5:
+            m.obstacle[i, j:j + w] = 1
+            m.obstacle[i, j + w // 2:j + w // 2 + 8] = 0
+    m.explored[74:86, 74:86] = 1
+    pose = (*m.to_xy(80, 80), float(rng.uniform(-3, 3)))
+    whole, first = FrontierPolicy(), FrontierPolicy()
+    whole.BAND = math.inf  # one march over everything, as before the narrow march
+    first.BAND = band
+    assert (first.select(m, pose, "chair", FMMPlanner())
+            == whole.select(m, pose, "chair", FMMPlanner()))
+
+
+def test_a_big_frontier_beyond_the_narrow_march_still_wins():
+    """A small frontier 1.1 m away and a long one 2 m away, whose size takes 1.6 m off its
+    cost: a first march of 0.3 m (+ 1.6) sees only the small one, which costs more than the
+    long one could; the policy must march on and pick the long one, as one whole march does."""
+    m = MapBuilder(Camera(), size=160).reset()
+    m.explored[70:91, 70:91] = 1  # round the agent: nearer than min_distance
+    m.explored[102:107, 78:83] = 1  # small, 1.1 m
+    m.explored[40:121, 120:160] = 1  # long, 2 m
+    lab, sizes = frontiers(m)
+    pose = (*m.to_xy(80, 80), 0.0)
+    picks = {}
+    for band in (0.3, 6.0, math.inf):
+        pol = FrontierPolicy()
+        pol.BAND = band
+        cell = pol.select(m, pose, "chair", FMMPlanner())
+        picks[band] = cell
+    assert sizes[lab[picks[math.inf]]] == sizes.max()
+    assert picks[0.3] == picks[6.0] == picks[math.inf]
+
+
 def test_an_agent_walled_in_by_its_own_inflated_marks_still_finds_a_way_out():
     """Between a wall and furniture 15 cm either side, with a bump mark ahead and one behind,
     inflation (even squeezed) seals the agent's patch: the policy once chose nothing, and the
