@@ -109,6 +109,7 @@ class FrontierPolicy:
     """
 
     name = "frontier"
+    BAND = 6.0  # m: the first, narrow march's reach beyond what a bonus can take off (_select)
 
     def __init__(self, size_weight: float = 0.01, min_distance: float = 1.0,
                  min_cells: int = 6, search_memory: bool = False):
@@ -164,14 +165,17 @@ class FrontierPolicy:
         front = sub > 0
         here = (agent[0] - i0, agent[1] - j0)
         # walled in by its own map: squeeze, and when even that seals it, the bare obstacles
-        for kw in ({}, {"squeeze": True}, {"bare": True}):
-            if kw.get("bare") and not planner.sealed(m, crop, agent, prior=prior):
-                return None
+        # (a map from which no frontier is reachable would give no frontier a distance)
+        for kw in ({}, {"squeeze": True}):
             trav = planner.traversable(m, crop, agent, prior=prior, **kw)
-            if reachable(trav, here, front):  # else no frontier would get a distance
+            if reachable(trav, here, front):
                 break
         else:
-            return None
+            if not planner.sealed(m, crop, agent, prior=prior):
+                return None
+            trav = planner.traversable(m, crop, agent, prior=prior, bare=True)
+            if not reachable(trav, here, front):
+                return None
         # First a march that stops BAND m (and what a frontier's bonus can take off its
         # cost) from the agent: when the cheapest frontier inside costs less than any
         # frontier beyond could, it is the cheapest of all, and the march over the whole
@@ -194,8 +198,6 @@ class FrontierPolicy:
                 break
         i, j = divmod(k, cost.shape[1])
         return i + i0, j + j0
-
-    BAND = 6.0  # m: the first, narrow march's reach beyond what a bonus can take off
 
     def _bonus_bound(self, sizes: np.ndarray) -> float:
         """The most that :meth:`_cost` can take off a frontier's distance (m)."""

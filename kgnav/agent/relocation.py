@@ -235,9 +235,8 @@ class StoredGeometry:
             self.dist = dist * grid.resolution
             # d(distance)/dx and /dy in metres per metre (columns are x, rows y)
             self.grad_y, self.grad_x = np.gradient(dist.astype(np.float32))
-            # one gather of three values per corner instead of three gathers: sampling is
-            # most of an alignment's time
-            # (flat: a row gather by one index is twice as fast as a 2-d fancy index)
+            # sampling is most of an alignment's time: one gather of three values per corner,
+            # by flat row index (twice as fast as three 2-d fancy indexes)
             self._field = np.stack([self.dist, self.grad_x, self.grad_y], axis=-1).reshape(-1, 3)
         else:
             self.dist = np.full(obst.shape, np.inf, np.float32)
