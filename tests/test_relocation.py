@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from kgnav.agent.memory import Memory
-from kgnav.agent.relocation import Relocalizer, RelocationConfig
+from kgnav.agent.relocation import HYPOTHESIS_OUTCOMES, Relocalizer, RelocationConfig
 from kgnav.agent.state_creator import AbstractState
 from kgnav.common import se2
 from kgnav.memory.geometry import ScanGeometry
@@ -844,3 +844,43 @@ def test_search_support_asks_the_episode_objects_for_positive_evidence(support):
             got = rel.observe(step, s, SCAN, episode) or got
         stands = support <= (3 if furnished else 0)
         assert (got is not None) is stands, (furnished, support)
+
+
+def test_every_hypothesis_judged_in_the_loop_is_kept_with_what_became_of_it():
+    """The right room: its hypotheses are logged at the step judged, with the agent's
+    position then, and the one taken says "accepted"; a wrong house's are logged refused
+    for their geometry, in step with the decision counts."""
+    T_true = (2.0, -1.0, 0.7)
+    states = episode_states(ROOM_A, T_true)
+    rel = Relocalizer(Memory({"a-e000": stored_model()}, threshold=0.05))
+    r = run(rel, states)
+    assert r is not None
+    outcomes = [h[-1] for h in rel.hypotheses]
+    assert outcomes.count("accepted") == 1 and outcomes[-1] == "accepted"
+    assert len(rel.hypotheses) == sum(rel.decisions[k] for k in
+                                      ("verified", "conflict", "geometry", "few points"))
+    step, model_id, T, at, source, _ = rel.hypotheses[-1]
+    assert (step, model_id, source) == (r.step, "a-e000", "features")
+    assert at == pytest.approx(states[step].pose[:2])
+    assert T == pytest.approx(r.transform)
+    assert all(h[-1] in HYPOTHESIS_OUTCOMES for h in rel.hypotheses)
+
+    wrong = Relocalizer(Memory({"a-e000": stored_model()}, threshold=0.05))
+    assert run(wrong, episode_states(ROOM_B, (0.5, 0.0, 0.3))) is None
+    got = [h[-1] for h in wrong.hypotheses]
+    assert got and set(got) <= {"geometry", "conflict", "few points"}
+    assert got.count("conflict") == wrong.decisions["conflict"]
+    wrong.reset()
+    assert wrong.hypotheses == []
+
+
+def test_an_ambiguous_hypothesis_is_logged_as_ambiguous():
+    m = AbstractModel(DIM, model_id="c-e000", extractor="toy", scan=SCAN)
+    for k, pose in enumerate(CORRIDOR_WALK):
+        m.add_state(unit(k), pose, (), step=k, ranges=cast(CORRIDOR, pose))
+    shift = (1.5, 0.0, 0.0)
+    states = [AbstractState(unit(k), se2.compose(shift, pose), (), cast(CORRIDOR, pose))
+              for k, pose in enumerate(CORRIDOR_WALK)]
+    rel = Relocalizer(Memory({"c-e000": m}, threshold=0.05))
+    assert run(rel, states) is None
+    assert [h[-1] for h in rel.hypotheses].count("ambiguous") == rel.decisions["ambiguous"] > 0

@@ -310,6 +310,19 @@ def test_a_tiny_run_records_the_split_and_summarises_it(tmp_path):
                 totals[k] = totals.get(k, 0) + n
     assert sp["frontier_sources_goal_not_in_memory"] == totals
     assert sp["goal_not_in_memory_vs_ans"]["success"]["pairs"] == parts[1]["episodes"]
+    # every hypothesis the loop judged, scored against the truth and added up
+    from kgnav.agent.relocation import HYPOTHESIS_OUTCOMES
+    from kgnav.benchmark.runner import HYPOTHESIS_TRUTH
+    mine = [r for r in recs if r["variant"] == "sp"]
+    assert all(r["hypotheses"].keys() == set(HYPOTHESIS_TRUTH) for r in mine)
+    assert all(set(c) <= set(HYPOTHESIS_OUTCOMES) for r in mine for c in r["hypotheses"].values())
+    assert all(r["house_models"] == 1 for r in mine)  # the pre-explored model of the house
+    for truth in HYPOTHESIS_TRUTH:
+        for outcome in HYPOTHESIS_OUTCOMES:
+            assert sp["hypotheses"]["judged"][truth].get(outcome, 0) == sum(
+                r["hypotheses"][truth].get(outcome, 0) for r in mine)
+    assert sp["hypotheses"]["not_relocated"] == sum(not r["relocated"] for r in mine)
+    assert all("hypotheses" not in r for r in recs if r["variant"] == "ans")
     assert "goal_in_memory" not in summary["ans"] and "goal_in_memory" not in summary["oracle"]
     assert len(summary["oracle"]["success_by_episode_index"]) == 2
 
@@ -333,6 +346,27 @@ def test_the_report_prints_the_split_the_reasons_and_the_curve(capsys):
     assert [c.strip() for c in si.strip("│").split("│")] == ["si", "1", "0", "0", "0", "0",
                                                              "1", "0", "0", "0"]
     assert "0.00 1.00 1.00" in out  # si's curve
+
+
+def test_the_report_prints_the_judged_hypotheses(capsys):
+    from kgnav.cli.eval import print_summary
+
+    recs = [_rec("si", "h", e, False) for e in range(3)]
+    for r, models, right in zip(recs, (0, 1, 1), ({}, {"conflict": 2}, {}), strict=True):
+        r.update(house_models=models,
+                 hypotheses={"right": right, "wrong": {"ambiguous": 3}, "other_house": {}})
+    summary = summarize(recs)
+    summary["si"]["episodes_per_second"] = 1.0
+    print_summary(summary)
+    out = capsys.readouterr().out
+    assert "Relocation hypotheses judged in the loop" in out
+    rows = [[c.strip() for c in line.strip("│").split("│")] for line in out.splitlines()
+            if line.startswith("│ si") and ("right" in line or "wrong" in line)]
+    assert rows == [["si", "right", "0", "0", "2", "0", "0", "0", "0", "0"],
+                    ["si", "wrong", "0", "0", "0", "0", "9", "0", "0", "0"]]
+    assert ("si: 2 episodes never relocated though the memory held their house; 1 of them "
+            "were offered the right place (1 refused it for its geometry alone)") in " ".join(
+                out.split())  # (the console wraps it)
 
 
 # ---------------------------------------------------------------------- a bridged model's goal
@@ -416,3 +450,48 @@ def test_the_remembered_floor_applies_to_what_the_episode_has_not_seen(env):
     assert t is not None and t.object_id == _ids(own)[0]
     with pytest.raises(UnknownClassError, match="unicorn"):
         _agent(env, None, goals=GoalConfig(remembered_floor=(("unicorn", 0.5),)))
+
+
+def test_judged_hypotheses_are_scored_against_the_true_frame():
+    """Episode 2 of house h; its frame maps into model h-e000's (episode 0's) by the truth.
+    A hypothesis at the truth is right, one 2 m off is wrong (as a merge that far off is),
+    one 40 degrees off too, one into another house's model is other_house; each counted
+    under what became of it."""
+    from kgnav.benchmark.runner import judged_hypotheses
+
+    gt = _GroundTruth(_House(), "h", 2)
+    truth = se2.compose(se2.inverse(STARTS[0]), STARTS[2])
+    off = se2.compose((2.0, 0.0, 0.0), truth)
+    turned = (*truth[:2], truth[2] + np.radians(40))
+    judged = [[5, "h-e000", truth, (0.5, 0.0), "features", "accepted"],
+              [3, "h-e000", truth, (0.0, 0.0), "features", "awaiting confirmation"],
+              [4, "h-e000", off, (0.0, 0.0), "features", "conflict"],
+              [6, "h-e000", turned, (0.0, 0.0), "scan search", "ambiguous"],
+              [7, "g-e000", truth, (0.0, 0.0), "features", "verified"]]
+    got = judged_hypotheses(gt, judged)
+    assert got == {"right": {"accepted": 1, "awaiting confirmation": 1},
+                   "wrong": {"ambiguous": 1, "conflict": 1},
+                   "other_house": {"verified": 1}}
+    # an environment that cannot say where its episodes start: nothing of this house judged
+    blind = _GroundTruth(SimpleNamespace(), "h", 2)
+    assert judged_hypotheses(blind, judged) == {"right": {}, "wrong": {},
+                                                "other_house": {"verified": 1}}
+
+
+def test_the_summary_says_whether_unrelocated_episodes_were_offered_the_right_place():
+    from kgnav.benchmark.runner import hypotheses_summary
+
+    def rec(relocated, house_models, right):
+        return {"relocated": relocated, "house_models": house_models,
+                "hypotheses": {"right": right, "wrong": {"conflict": 2}, "other_house": {}}}
+
+    recs = [rec(True, 1, {"accepted": 1}),
+            rec(False, 0, {}),  # the house's first episode: nothing to relocate into
+            rec(False, 1, {}),  # never offered the right place
+            rec(False, 2, {"conflict": 1}),  # offered, refused for its geometry
+            rec(False, 1, {"ambiguous": 2, "conflict": 1})]  # offered, found ambiguous
+    s = hypotheses_summary(recs)
+    assert s["judged"] == {"right": {"accepted": 1, "ambiguous": 2, "conflict": 2},
+                           "wrong": {"conflict": 10}, "other_house": {}}
+    assert (s["not_relocated"], s["not_relocated_offered_right"],
+            s["not_relocated_refused_geometry"]) == (3, 2, 1)

@@ -302,6 +302,10 @@ class Relocalizer:
         self.undone: list[Relocation] = []
         self.bridges: dict[str, Verdict] = {}  # other models verified during the episode
         self.decisions: Counter = Counter()
+        # every hypothesis judged in the loop, for scoring against ground truth (never read
+        # by the agent): [step, model id, transform as verified, agent's (x, y) then, source,
+        # outcome (HYPOTHESIS_OUTCOMES)]
+        self.hypotheses: list[list] = []
         self.matched: set[str] = set()  # models whose states the episode's views matched
         self._recent: deque = deque(maxlen=self.config.recent_scans)
         self._all: list = []  # every profile of the episode, for the check before merging
@@ -368,32 +372,40 @@ class Relocalizer:
                 judged += 1
                 v = self.verify(m.model_id, T)
                 self.decisions[v.reason] += 1
+                judged_here = [int(step), m.model_id, v.transform,
+                               (float(state.pose[0]), float(state.pose[1])), source, v.reason]
+                self.hypotheses.append(judged_here)
                 if not v.ok:
                     self._failed.append((step, m.model_id, tuple(T)))
                     self._drop_pending(m.model_id, T)
                     continue
             else:
                 v = Verdict(True, "feature match", tuple(T))
+                judged_here = None
             if not self._confirmed(step, m.model_id, v.transform):
                 self.decisions["awaiting confirmation"] += 1
+                _outcome(judged_here, "awaiting confirmation")
                 continue
             if self.config.geometry and self.config.unique:
                 alt = self.ambiguity(m.model_id, v)
                 if alt is not None:  # a corridor, a symmetric room, a repeated room
                     self._refuse(step, m.model_id, T, "ambiguous")
+                    _outcome(judged_here, "ambiguous")
                     continue
             if source == "scan search":
                 refusal = self._search_refusal(episode, m.model_id, v)
                 if refusal is not None:
                     self._refuse(step, m.model_id, T, refusal)
+                    _outcome(judged_here, "refused by the episode")
                     continue
             if best is None or v.inliers > best[1].inliers:
-                best = (m, v, source)
+                best = (m, v, source, judged_here)
             if not self.config.geometry:
                 break  # the paper: the first match
         if best is None:
             return None
-        m, v, source = best
+        m, v, source, judged_here = best
+        _outcome(judged_here, "accepted")
         if source == "scan search":
             self.decisions["scan search accepted"] += 1
         look, looked = self.appearance(m.model_id, v.transform)
@@ -1373,6 +1385,19 @@ class Relocalizer:
             if v.ok:
                 self.bridges[m.model_id] = v
                 self.decisions["bridge"] += 1
+
+
+#: What became of a hypothesis judged in the loop (:attr:`Relocalizer.hypotheses`): refused
+#: by its geometry (the verification's reasons), verified but not yet confirmed by a second
+#: match, ambiguous, refused by the episode's objects (a scan search's), verified but another
+#: was taken, or accepted.
+HYPOTHESIS_OUTCOMES = ("few points", "geometry", "conflict", "awaiting confirmation",
+                       "ambiguous", "refused by the episode", "verified", "accepted")
+
+
+def _outcome(judged: list | None, outcome: str) -> None:
+    if judged is not None:
+        judged[-1] = outcome
 
 
 def _constraint(geo: StoredGeometry, ends: np.ndarray, T, inlier_distance: float) -> float:

@@ -408,6 +408,9 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     gt = _GroundTruth(env, name, episode)
     house_truth = _ROUND.get("truth", {}).get(name, {})  # scoring only: the agent never sees it
     held = goal_in_memory(gt, memory, goal, house_truth)
+    # the house's own models as the episode starts: what it could relocate into
+    house_models = (None if memory is None
+                    else sum(_house_of(mid) == name for mid in memory.models))
     seen = seen_instances(obs) if variant.learns else set()
     track = variant.learns or memory is not None
     path = [gt.world_pose()] if track else []  # true pose after each step
@@ -467,6 +470,8 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
                                   else round(target_err, 3))
     record["failure"] = _failure(record, variant, target_source, target_err)
     record["goal_in_memory"] = held
+    if house_models is not None:
+        record["house_models"] = house_models
     record["memory_goal_reason"] = (agent.memory_goal_reason()
                                     if held and record.get("memory_goal_step") is None else None)
     if not variant.oracle and agent.memory is not None:
@@ -486,6 +491,7 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     into = agent.mergeable() if variant.learns else None  # (the merge checks count decisions)
     if rel is not None:  # why hypotheses were accepted or refused, and bridges found
         record["relocation_decisions"] = dict(sorted(rel.decisions.items()))
+        record["hypotheses"] = judged_hypotheses(gt, rel.hypotheses)
     if variant.learns:
         bridges = {}
         if reloc is not None:
@@ -1281,6 +1287,7 @@ def summarize(records: Iterable[dict], seed: int = 0) -> dict[str, dict]:
         }
         if _has_memory(name):
             out[name].update(where_lost(recs))
+            out[name]["hypotheses"] = hypotheses_summary(recs)
     for name, diff in paired_differences(records, "ans", seed=seed).items():
         out[name]["vs_ans"] = diff
     if "ans" in by:
@@ -1363,6 +1370,50 @@ def _merges(record: dict):
 def _as_merged(fields: dict) -> dict:
     placed = fields.get("placed")
     return {**fields, **placed} if placed else fields
+
+
+#: How a hypothesis stands against ground truth: into a model of this house and within 1 m
+#: and 30 degrees (as merges are judged, :func:`_wrong`), into one of this house but farther
+#: off, or into another house's model.
+HYPOTHESIS_TRUTH = ("right", "wrong", "other_house")
+
+
+def judged_hypotheses(gt: _GroundTruth, judged) -> dict[str, dict[str, int]]:
+    """The hypotheses the loop judged (:attr:`~kgnav.agent.relocation.Relocalizer.hypotheses`)
+    by truth (:data:`HYPOTHESIS_TRUTH`), each counted by outcome
+    (:data:`~kgnav.agent.relocation.HYPOTHESIS_OUTCOMES`): whether an episode that never
+    relocated was never offered the right place, or refused it. Hypotheses whose truth the
+    environment cannot tell (no episode starts) are left out."""
+    out = {t: Counter() for t in HYPOTHESIS_TRUTH}
+    for step, model_id, T, at, _source, outcome in judged:
+        if _house_of(model_id) != gt.name:
+            out["other_house"][outcome] += 1
+            continue
+        err = _relocation_error(gt, model_id, T, at, step)
+        if err:
+            out["wrong" if _wrong(err) else "right"][outcome] += 1
+    return {t: dict(sorted(c.items())) for t, c in out.items()}
+
+
+def hypotheses_summary(recs: list[dict]) -> dict:
+    """The episodes' :func:`judged_hypotheses` added up; and of the episodes that never
+    relocated although the memory held a model of their house (``not_relocated``), how
+    many were offered the right place at least once (``not_relocated_offered_right``) and
+    how many of those refused it only for its geometry (``..._refused_geometry``: few
+    points, geometry or conflict)."""
+    total = {t: Counter() for t in HYPOTHESIS_TRUTH}
+    for r in recs:
+        for t, c in (r.get("hypotheses") or {}).items():
+            total[t].update(c)
+    stuck = [r for r in recs if not r["relocated"] and "hypotheses" in r
+             and r.get("house_models", 1) > 0]
+    offered = [r for r in stuck if r["hypotheses"].get("right")]
+    geometric = {"few points", "geometry", "conflict"}
+    return {"judged": {t: dict(sorted(c.items())) for t, c in total.items()},
+            "not_relocated": len(stuck),
+            "not_relocated_offered_right": len(offered),
+            "not_relocated_refused_geometry": sum(
+                1 for r in offered if set(r["hypotheses"]["right"]) <= geometric)}
 
 
 def _wrong(fields: dict, local: bool = False) -> bool:

@@ -15,6 +15,7 @@ from rich.table import Table
 
 from kgnav.agent.loop import MEMORY_GOAL_REASONS
 from kgnav.agent.noise_segmenters import SEGMENTER_PRESETS
+from kgnav.agent.relocation import HYPOTHESIS_OUTCOMES
 from kgnav.benchmark.engines import ENGINES
 from kgnav.benchmark.failures import FAILURE_CLASSES
 from kgnav.benchmark.variants import VARIANTS
@@ -370,6 +371,7 @@ def print_summary(summary: dict) -> None:
                 _own_frame(p))
         console.print(t3)
     _print_where_lost(console, summary)
+    _print_hypotheses(console, summary)
 
 
 def _print_where_lost(console: Console, summary: dict) -> None:
@@ -431,6 +433,28 @@ def _own_frame(p: dict) -> str:
     far = "" if not off or off.get("median") is None else \
         f" ({off['median']:.2f} / {off['max']:.2f})"
     return f"{_f(own['precision'])} / {_f(own['recall'])}{far}"
+
+
+def _print_hypotheses(console: Console, summary: dict) -> None:
+    """The relocation hypotheses a memory variant's loop judged, by truth and outcome, and
+    whether the episodes that never relocated were offered the right place."""
+    rows = {n: s["hypotheses"] for n, s in summary.items() if "hypotheses" in s}
+    if not rows:
+        return
+    t = Table("variant", "truth", *HYPOTHESIS_OUTCOMES,
+              title="Relocation hypotheses judged in the loop, against ground truth (right: "
+                    "this house, within 1 m and 30°)")
+    for name, h in rows.items():
+        for truth, counts in h["judged"].items():
+            t.add_row(name, truth.replace("_", " "),
+                      *(str(counts.get(o, 0)) for o in HYPOTHESIS_OUTCOMES))
+    console.print(t)
+    for name, h in rows.items():
+        console.print(f"{name}: {h['not_relocated']} episodes never relocated though the "
+                      "memory held their house; "
+                      f"{h['not_relocated_offered_right']} of them were offered the right "
+                      f"place ({h['not_relocated_refused_geometry']} refused it for its "
+                      "geometry alone)")
 
 
 def _f(v, digits: int = 2) -> str:
