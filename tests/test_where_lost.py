@@ -317,6 +317,7 @@ def test_a_tiny_run_records_the_split_and_summarises_it(tmp_path):
     assert all(r["hypotheses"].keys() == set(HYPOTHESIS_TRUTH) for r in mine)
     assert all(set(c) <= set(HYPOTHESIS_OUTCOMES) for r in mine for c in r["hypotheses"].values())
     assert all(r["house_models"] == 1 for r in mine)  # the pre-explored model of the house
+    assert all(0.0 <= r["memory_overlap"] <= 1.0 for r in mine)  # its states' truth is known
     for truth in HYPOTHESIS_TRUTH:
         for outcome in HYPOTHESIS_OUTCOMES:
             assert sp["hypotheses"]["judged"][truth].get(outcome, 0) == sum(
@@ -352,8 +353,9 @@ def test_the_report_prints_the_judged_hypotheses(capsys):
     from kgnav.cli.eval import print_summary
 
     recs = [_rec("si", "h", e, False) for e in range(3)]
-    for r, models, right in zip(recs, (0, 1, 1), ({}, {"conflict": 2}, {}), strict=True):
-        r.update(house_models=models,
+    for r, models, right, overlap in zip(recs, (0, 1, 1), ({}, {"conflict": 2}, {}),
+                                         (None, 0.6, 0.5), strict=True):
+        r.update(house_models=models, memory_overlap=overlap,
                  hypotheses={"right": right, "wrong": {"ambiguous": 3}, "other_house": {}})
     summary = summarize(recs)
     summary["si"]["episodes_per_second"] = 1.0
@@ -365,7 +367,8 @@ def test_the_report_prints_the_judged_hypotheses(capsys):
     assert rows == [["si", "right", "0", "0", "2", "0", "0", "0", "0", "0"],
                     ["si", "wrong", "0", "0", "0", "0", "9", "0", "0", "0"]]
     assert ("si: 2 episodes never relocated though the memory held their house; 1 of them "
-            "were offered the right place (1 refused it for its geometry alone)") in " ".join(
+            "were offered the right place (1 refused it for its geometry alone); they walked "
+            "a median 0.55 of their steps within 1 m of a stored state") in " ".join(
                 out.split())  # (the console wraps it)
 
 
@@ -490,8 +493,23 @@ def test_the_summary_says_whether_unrelocated_episodes_were_offered_the_right_pl
             rec(False, 1, {}),  # never offered the right place
             rec(False, 2, {"conflict": 1}),  # offered, refused for its geometry
             rec(False, 1, {"ambiguous": 2, "conflict": 1})]  # offered, found ambiguous
+    for r, overlap in zip(recs, (0.9, None, 0.0, 0.5, 0.7), strict=True):
+        r["memory_overlap"] = overlap
     s = hypotheses_summary(recs)
+    assert s["not_relocated_overlap"] == 0.5  # the median over the 3 that count
     assert s["judged"] == {"right": {"accepted": 1, "ambiguous": 2, "conflict": 2},
                            "wrong": {"conflict": 10}, "other_house": {}}
     assert (s["not_relocated"], s["not_relocated_offered_right"],
             s["not_relocated_refused_geometry"]) == (3, 2, 1)
+
+
+def test_memory_overlap_is_the_share_of_steps_near_a_stored_state():
+    from kgnav.benchmark.runner import OVERLAP_RADIUS, memory_overlap
+
+    stored = [(0.0, 0.0, 0.0), (10.0, 0.0, 2.0)]
+    walk = [(0.0, 0.99 * OVERLAP_RADIUS, 0.0), (5.0, 0.0, 0.0), None,
+            (10.0, -1.01 * OVERLAP_RADIUS, 1.0), (9.5, 0.5, 3.0)]
+    assert memory_overlap(walk, stored) == 0.5  # 2 of the 4 known positions
+    assert memory_overlap(walk, []) is None and memory_overlap([None], stored) is None
+    many = [(0.01 * k, 50.0, 0.0) for k in range(5000)]  # more states than one chunk
+    assert memory_overlap([(49.0, 50.2, 0.0), (0.0, 0.0, 0.0)], many) == 0.5

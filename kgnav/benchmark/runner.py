@@ -492,6 +492,8 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     if rel is not None:  # why hypotheses were accepted or refused, and bridges found
         record["relocation_decisions"] = dict(sorted(rel.decisions.items()))
         record["hypotheses"] = judged_hypotheses(gt, rel.hypotheses)
+        if house_truth:
+            record["memory_overlap"] = memory_overlap(path, house_truth.values())
     if variant.learns:
         bridges = {}
         if reloc is not None:
@@ -1395,12 +1397,38 @@ def judged_hypotheses(gt: _GroundTruth, judged) -> dict[str, dict[str, int]]:
     return {t: dict(sorted(c.items())) for t, c in out.items()}
 
 
+#: m: an episode's step is on remembered ground when a stored state of its house stood this
+#: close to where the agent truly was (:func:`memory_overlap`)
+OVERLAP_RADIUS = 1.0
+
+
+def memory_overlap(path, stored) -> float | None:
+    """Share of an episode's true positions (``path``, world poses; None entries skipped)
+    within :data:`OVERLAP_RADIUS` of the true position of a stored state of its house
+    (``stored``, world poses): how much of the episode walked where the memory had been,
+    so could have relocated. None without positions on both sides.
+
+    >>> memory_overlap([(0, 0, 0), (0.5, 0, 0), (3, 0, 0), None], [(0.2, 0.1, 1.0)])
+    0.667
+    """
+    walk = np.array([p[:2] for p in path if p is not None], float).reshape(-1, 2)
+    where = np.array([p[:2] for p in stored], float).reshape(-1, 2)
+    if not len(walk) or not len(where):
+        return None
+    near = np.zeros(len(walk), bool)
+    for k in range(0, len(where), 2048):  # (memory: steps x a chunk of states at a time)
+        d2 = ((walk[:, None, :] - where[None, k:k + 2048, :]) ** 2).sum(-1)
+        near |= (d2 <= OVERLAP_RADIUS ** 2).any(axis=1)
+    return round(float(near.mean()), 3)
+
+
 def hypotheses_summary(recs: list[dict]) -> dict:
     """The episodes' :func:`judged_hypotheses` added up; and of the episodes that never
     relocated although the memory held a model of their house (``not_relocated``), how
     many were offered the right place at least once (``not_relocated_offered_right``) and
     how many of those refused it only for its geometry (``..._refused_geometry``: few
-    points, geometry or conflict)."""
+    points, geometry or conflict), and the median of their :func:`memory_overlap`
+    (``not_relocated_overlap``)."""
     total = {t: Counter() for t in HYPOTHESIS_TRUTH}
     for r in recs:
         for t, c in (r.get("hypotheses") or {}).items():
@@ -1409,8 +1437,11 @@ def hypotheses_summary(recs: list[dict]) -> dict:
              and r.get("house_models", 1) > 0]
     offered = [r for r in stuck if r["hypotheses"].get("right")]
     geometric = {"few points", "geometry", "conflict"}
+    overlap = [r["memory_overlap"] for r in stuck if r.get("memory_overlap") is not None]
     return {"judged": {t: dict(sorted(c.items())) for t, c in total.items()},
             "not_relocated": len(stuck),
+            # how much of them walked where the house's memory had been (median share)
+            "not_relocated_overlap": float(np.median(overlap)) if overlap else None,
             "not_relocated_offered_right": len(offered),
             "not_relocated_refused_geometry": sum(
                 1 for r in offered if set(r["hypotheses"]["right"]) <= geometric)}

@@ -438,6 +438,8 @@ def _own_frame(p: dict) -> str:
 def _print_hypotheses(console: Console, summary: dict) -> None:
     """The relocation hypotheses a memory variant's loop judged, by truth and outcome, and
     whether the episodes that never relocated were offered the right place."""
+    from kgnav.benchmark.runner import OVERLAP_RADIUS
+
     rows = {n: s["hypotheses"] for n, s in summary.items() if "hypotheses" in s}
     if not rows:
         return
@@ -454,7 +456,9 @@ def _print_hypotheses(console: Console, summary: dict) -> None:
                       "memory held their house; "
                       f"{h['not_relocated_offered_right']} of them were offered the right "
                       f"place ({h['not_relocated_refused_geometry']} refused it for its "
-                      "geometry alone)")
+                      "geometry alone); they walked a median "
+                      f"{_f(h.get('not_relocated_overlap'))} of their steps within "
+                      f"{OVERLAP_RADIUS:g} m of a stored state")
 
 
 def _f(v, digits: int = 2) -> str:
