@@ -289,6 +289,42 @@ def test_an_agent_walled_in_by_its_own_inflated_marks_still_finds_a_way_out():
     assert policy.select(m, pose, "chair", FMMPlanner()) is None
 
 
+def test_the_planner_reaches_a_frontier_the_policy_took_from_the_memorys_bare_map():
+    """A room the agent's own map walls in (its east doorway, 0.3 m, closed by inflation),
+    whose east part only a remembered model has seen, and beyond the doorway a corridor as
+    narrow that the memory saw up to its end. With the memory's knowledge nothing is left to
+    explore in the room: the frontier policy takes the corridor's end from the bare obstacles.
+    Without it, the room's unseen part looked like space to explore, so the planner refused
+    the bare map, every plan to that frontier ended inf, and the agent turned in place to the
+    step limit (train_08, episode 8: 400 steps)."""
+    m = MapBuilder(Camera(), size=160).reset()
+    room = (slice(60, 101), slice(50, 102))  # with its walls
+    m.explored[60:101, 50:90] = 1  # the agent saw the room's west part only
+    m.obstacle[60, 50:102] = m.obstacle[100, 50:102] = 1
+    m.obstacle[60:101, 50] = m.obstacle[60:101, 101] = 1
+    m.obstacle[78:84, 101] = 0  # the doorway, 6 cells
+    prior = np.zeros_like(m.obstacle)
+    prior[77, 101:126] = prior[84, 101:126] = 1  # the corridor's walls, memory only
+    seen = np.zeros_like(m.obstacle)
+    seen[room] = 1
+    seen[77:85, 101:126] = 1
+    m.prior_obstacle, m.prior_explored = prior, seen
+    m.prior_searched = np.zeros_like(seen)
+    pose = (*m.to_xy(80, 70), 0.0)
+    planner, policy = FMMPlanner(), FrontierPolicy()
+    crop = planner.window(m, (80, 70), seen > 0)
+    assert not planner.sealed(m, crop, (80, 70), prior=False)  # the room's unseen part
+    assert planner.sealed(m, crop, (80, 70))  # ... is no space to explore to the memory
+    cell = policy.select(m, pose, "chair", planner)
+    assert cell is not None and cell[1] == 125  # the corridor's end
+    goal = np.zeros(m.shape, bool)
+    goal[cell[0] - 5:cell[0] + 6, cell[1] - 5:cell[1] + 6] = True
+    plan = planner.plan(m, pose, goal, key="corridor")
+    assert math.isfinite(plan.distance) and plan.distance > 2.0
+    m.prior_explored[room] = 0  # the memory never saw the room: the unseen part is to explore
+    assert not math.isfinite(FMMPlanner().plan(m, pose, goal, key="corridor").distance)
+
+
 def test_a_goal_behind_a_gap_the_agent_does_not_fit_stays_out_of_reach():
     """Not walled in (space left to explore), only facing a goal behind a 10 cm gap: the bare
     map would lead the agent to push at the gap, so the planner says unreachable (and the
@@ -672,3 +708,47 @@ def test_a_way_round_that_keeps_growing_past_the_detour_ratio_is_given_up(env):
     assert walk(one_long_way, detour_ratio=3.0)[0] is None
     with pytest.raises(ValueError, match="detour_ratio"):
         AgentConfig(detour_ratio=0.5)
+
+
+def _stalled_approach(target, **cfg) -> list:
+    """What the agent does at each step while a plan toward ``target`` makes no progress
+    (pressed against furniture: the plan says forward, the pose never changes)."""
+    from types import SimpleNamespace
+
+    from kgnav.agent.planner import Plan
+
+    env = ObjectNavEnv("val-small", 0)
+    agent = ObjectNavAgent(Camera.from_env(env), make_segmenter("clean", 0),
+                           make_extractor("opencv-gist"), config=AgentConfig(**cfg))
+    agent.reset("chair")
+    agent._target = target
+    p = SimpleNamespace(state=SimpleNamespace(pose=(0.0, 0.0, 0.0)))
+    plan = Plan("move_forward", False, 0.1, (0.3, 0.0))
+    out = []
+    for step in range(60):
+        agent.step_ = step
+        out.append(agent._approach(target, plan, p))
+        if out[-1] != "move_forward":
+            break
+    return out, agent
+
+
+@pytest.mark.parametrize("source, at, near_stall, last, stopped", [
+    ("live", 0.9, 10, 11, True),  # within 1 m of what it saw: stops after 10 steps
+    ("episode", 0.9, 0, 41, True),  # off: after stall_steps, as before
+    ("live", 1.2, 10, 41, False),  # farther: given up after stall_steps
+    ("memory", 0.5, 10, 41, False),  # a remembered goal is never stopped at unseen
+])
+def test_stalled_near_a_goal_it_saw_the_agent_stops_sooner(source, at, near_stall, last,
+                                                          stopped):
+    from kgnav.agent.loop import Target
+
+    target = Target(source, (at, 0.0), "o1")
+    actions, agent = _stalled_approach(target, near_stall_steps=near_stall)
+    assert len(actions) == last + 1 and set(actions[:-1]) == {"move_forward"}
+    if stopped:
+        assert actions[-1] == "stop"
+        assert agent.log_.stop_reason == f"stalled near {source} goal"
+    else:
+        assert actions[-1] is None and agent._target is None  # given up
+        assert agent.log_.rejected == ["o1"]

@@ -277,7 +277,9 @@ class FMMPlanner:
         the agent cannot reach them, retried on the squeezed map, then without the
         remembered obstacles: a memory's coarse walls guide the way but never rule a goal
         out (a doorway its range profiles caught only at an angle looks closed); last, when
-        the agent is :meth:`sealed` in, with obstacles not inflated (``bare``)."""
+        the agent is :meth:`sealed` in, with obstacles not inflated (``bare``): its own
+        when its own map seals it, its own and the memory's when the memory's does, as the
+        frontier policy does (every frontier it picks is one the planner can reach)."""
         speed = self._speed(m, crop)
         here = (agent[0] - crop[0], agent[1] - crop[2])
         tries = [{}, {"squeeze": True}]
@@ -290,6 +292,13 @@ class FMMPlanner:
         if self.sealed(m, crop, agent, prior=False):
             return fmm_distance(self.traversable(m, crop, agent, prior=False, bare=True),
                                 targets, speed=speed)
+        if m.prior_obstacle is not None and self.sealed(m, crop, agent):
+            # walled in as far as the memory knows: the space the agent's own map leaves
+            # open was seen by the memory, so nothing is left to explore there. The frontier
+            # policy then takes its frontiers from the bare obstacles, memory's included; a
+            # planner that refused the same map would leave the agent turning in place
+            return fmm_distance(self.traversable(m, crop, agent, bare=True), targets,
+                                speed=speed)
         return np.full(targets.shape, np.inf)
 
     def sealed(self, m: EpisodeMap, crop, agent: tuple[int, int], *, prior: bool = True
