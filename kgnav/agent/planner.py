@@ -51,7 +51,9 @@ def fmm_distance(traversable: np.ndarray, targets: np.ndarray, clearance: float 
     makes it a travel time with that speed per cell (times the clearance slowdown).
     ``narrow`` > 0 stops the march there: cells whose value would be at least that read
     ``inf``, every other cell reads exactly what the whole march gives it (Fast Marching
-    settles cells in order of their value), at a fraction of the cost.
+    settles cells in order of their value), at a fraction of the cost. With a ``speed``
+    (a travel time) the march may stop short of it: cells up to 2 below it can read
+    ``inf`` too (1.43 the most seen in 3000 random maps).
 
     >>> trav = np.ones((1, 5), bool); goal = np.zeros((1, 5), bool); goal[0, 0] = True
     >>> half = np.full((1, 5), 0.5)
