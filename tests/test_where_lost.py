@@ -164,9 +164,34 @@ def test_the_split_the_reasons_and_the_pairing_with_ans():
     assert "goal_not_in_memory_vs_ans" not in alone
     unknown = summarize([_rec("sp", "h", 0, True)])["sp"]
     assert unknown["goal_in_memory"] == {"episodes": 0, "success": None, "spl": None}
+    # not yet scored whether the goal was ever in view: empty parts, nothing counted
+    assert s["si"]["goal_not_in_memory_seen_before"]["episodes"] == 0
+    assert s["si"]["exploration_failures_goal_in_view"] == {"episodes": 0, "in_view": 0}
     none_paired = summarize([*ans, _rec("si", "h", 1, True, held=True, step=3)])["si"]
     assert none_paired["goal_not_in_memory_vs_ans"]["success"] == {
         "diff": None, "low": None, "high": None, "pairs": 0}
+
+
+def test_the_goal_not_in_memory_split_by_what_the_house_had_in_view():
+    def rec(e, ok, held, before, failure=None, in_view="absent"):
+        r = {**_rec("si", "h", e, ok, held=held), "goal_seen_before": before,
+             "failure": failure}
+        if in_view != "absent":
+            r["goal_in_view_step"] = in_view
+        return r
+
+    recs = [rec(0, False, False, False, "Exploration", None),   # never near, never in view
+            rec(1, True, False, True, None, 40),                 # missed before, found now
+            rec(2, False, False, True, "Exploration", 17),       # in view, not recognised
+            rec(3, False, False, True, "Detection", 5),
+            rec(4, True, True, True, None, 3),                   # held: in neither split
+            rec(5, False, True, True, "Exploration")]            # in view not scored
+    s = summarize(recs)["si"]
+    assert s["goal_not_in_memory_seen_before"] == {"episodes": 3, "success": pytest.approx(1 / 3),
+                                                   "spl": pytest.approx(1 / 3)}
+    assert s["goal_not_in_memory_never_seen"] == {"episodes": 1, "success": 0.0, "spl": 0.0}
+    # Exploration failures whose in-view step was scored: 0 and 2; 2 had the goal in view
+    assert s["exploration_failures_goal_in_view"] == {"episodes": 2, "in_view": 1}
 
 
 # ---------------------------------------------------------------------- the reasons
@@ -317,6 +342,12 @@ def test_a_tiny_run_records_the_split_and_summarises_it(tmp_path):
     assert all(r["hypotheses"].keys() == set(HYPOTHESIS_TRUTH) for r in mine)
     assert all(set(c) <= set(HYPOTHESIS_OUTCOMES) for r in mine for c in r["hypotheses"].values())
     assert all(r["house_models"] == 1 for r in mine)  # the pre-explored model of the house
+    # scoring only: whether the pre-exploration, and the episode, had a true goal in view
+    assert all(isinstance(r["goal_seen_before"], bool) for r in mine)
+    assert any(r["goal_seen_before"] for r in mine)  # 150 steps of pre-exploration saw some
+    # the learned segmenter needs no labels: those frames were not rendered, nothing watched
+    assert all("goal_in_view_step" not in r for r in recs)
+    assert all("goal_seen_before" not in r for r in recs if r["variant"] == "ans")
     assert all(0.0 <= r["memory_overlap"] <= 1.0 for r in mine)  # its states' truth is known
     for truth in HYPOTHESIS_TRUTH:
         for outcome in HYPOTHESIS_OUTCOMES:
@@ -328,6 +359,28 @@ def test_a_tiny_run_records_the_split_and_summarises_it(tmp_path):
     assert len(summary["oracle"]["success_by_episode_index"]) == 2
 
 
+def test_a_learning_run_scores_when_the_goal_came_into_view(tmp_path):
+    cfg = EvalConfig(split="val-small", scenes=1, episodes=4, max_steps=150,
+                     extractor="opencv-gist", variants=("si",))
+    run_eval(cfg, tmp_path, progress=False)
+    recs = [json.loads(line) for line in (tmp_path / "episodes.jsonl").read_text().splitlines()]
+    assert len(recs) == 4
+    for r in recs:  # a learning variant renders the labels its memory is scored by
+        k = r["goal_in_view_step"]
+        assert k is None or 0 <= k <= r["steps"]
+        if r["success"]:  # within 1 m of a goal, which came into view on the way
+            assert k is not None
+        earlier = [e for e in recs if e["episode"] < r["episode"] and e["goal"] == r["goal"]]
+        if any(e["goal_in_view_step"] is not None for e in earlier):
+            assert r["goal_seen_before"] is True  # the house's episodes had it in view
+    assert recs[0]["goal_seen_before"] is False  # nothing before the house's first episode
+    assert any(r["goal_in_view_step"] is not None for r in recs)
+    s = json.loads((tmp_path / "summary.json").read_text())["si"]
+    parts = (s["goal_not_in_memory_seen_before"]["episodes"]
+             + s["goal_not_in_memory_never_seen"]["episodes"])
+    assert parts == s["goal_not_in_memory"]["episodes"]
+
+
 def test_the_report_prints_the_split_the_reasons_and_the_curve(capsys):
     from kgnav.cli.eval import print_summary
 
@@ -335,6 +388,7 @@ def test_the_report_prints_the_split_the_reasons_and_the_curve(capsys):
     recs += [_rec("si", "h", 0, False, held=False),
              _rec("si", "h", 1, True, held=True, reason="goal_in_other_model"),
              _rec("si", "h", 2, True, held=True, step=4)]
+    recs[3].update(goal_seen_before=True, failure="Exploration", goal_in_view_step=12)
     summary = summarize(recs)
     for s in summary.values():
         s["episodes_per_second"] = 1.0
@@ -347,6 +401,10 @@ def test_the_report_prints_the_split_the_reasons_and_the_curve(capsys):
     assert [c.strip() for c in si.strip("│").split("│")] == ["si", "1", "0", "0", "0", "0",
                                                              "1", "0", "0", "0"]
     assert "0.00 1.00 1.00" in out  # si's curve
+    flat = " ".join(out.split())
+    assert ("si: goal not in memory, though an earlier episode of the house had it in view: 1 "
+            "(success 0.000); never in view: 0 (success –). Exploration failures whose goal "
+            "came into view unrecognised: 1 of 1") in flat
 
 
 def test_the_report_prints_the_judged_hypotheses(capsys):

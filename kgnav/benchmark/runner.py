@@ -382,6 +382,13 @@ def seen_instances(obs) -> set[int]:
     return {int(i) for i in np.flatnonzero(counts >= SEEN_PIXELS) if i > 0}
 
 
+def goal_instances(env: NavEnv, goal: str) -> set[int] | None:
+    """Ids of the true instances of ``goal`` (scoring only); None when the environment does
+    not list its objects (``scene_objects``)."""
+    objects = getattr(env, "scene_objects", None)
+    return None if objects is None else {int(o.id) for o in objects() if o.cls == goal}
+
+
 def needs_semantic(agent, variant: Variant) -> bool:
     """Whether an episode's frames must carry the ground-truth semantic channel: for a segmenter
     that reads it, and for the instances a learning variant's memory is scored against
@@ -412,6 +419,12 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     house_models = (None if memory is None
                     else sum(_house_of(mid) == name for mid in memory.models))
     seen = seen_instances(obs) if variant.learns else set()
+    # scoring only: had the house's earlier episodes a true goal instance in view, and when
+    # did this one first have one (what a segmenter should have recognised)
+    goals = goal_instances(env, goal)
+    before = _ROUND.get("seen", {}).get(name) if memory is not None else None
+    watch = labels and goals is not None and not variant.oracle
+    in_view = 0 if watch and goals & seen_instances(obs) else None
     track = variant.learns or memory is not None
     path = [gt.world_pose()] if track else []  # true pose after each step
     if cfg.noise_spec.active:  # with drift, judge relocations by where the agent truly was
@@ -426,8 +439,11 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
         check_observation(obs, spec, labels)
         steps += 1
         done = term or trunc
+        now = seen_instances(obs) if variant.learns or watch else set()
         if variant.learns:
-            seen |= seen_instances(obs)
+            seen |= now
+        if in_view is None and watch and now & goals:
+            in_view = steps
         if track:
             path.append(gt.world_pose())
     if "success" not in info:
@@ -470,6 +486,10 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
                                   else round(target_err, 3))
     record["failure"] = _failure(record, variant, target_source, target_err)
     record["goal_in_memory"] = held
+    if watch:
+        record["goal_in_view_step"] = in_view
+    if goals is not None and memory is not None:
+        record["goal_seen_before"] = bool(goals & (before or set()))
     if house_models is not None:
         record["house_models"] = house_models
     record["memory_goal_reason"] = (agent.memory_goal_reason()
@@ -958,6 +978,7 @@ def run_variant(cfg: EvalConfig, variant: Variant, extractor_name: str, out: Pat
                 if variant.memory:
                     context["memory"] = Memory(models, threshold=threshold)
                     context["truth"] = truth  # scoring only: where the stored states truly are
+                    context["seen"] = seen  # scoring only: what the house's episodes had in view
                 if variant.policy == "semantic":
                     context["cooccurrence"] = cooccurrence(models.values())
             tasks = [(cfg, variant, s, r, r, extractor_name, _topdown_path(cfg, out, variant, s, r))
@@ -1327,14 +1348,29 @@ def where_lost(recs: list[dict]) -> dict:
     """A memory variant's episodes split by whether the house's memory held a true instance
     of the goal as they started (``goal_in_memory``; episodes that cannot know are in
     neither part): episodes, success and SPL of each part; of the goal-in-memory ones, how
-    many headed for a goal taken from memory, and why the others did not, counted."""
+    many headed for a goal taken from memory, and why the others did not, counted. The
+    goal-not-in-memory part is split again by whether the house's earlier episodes had had a
+    true goal instance in view (``goal_seen_before``: the memory was near it and did not keep
+    it), and the Exploration failures are counted by whether the goal came into view
+    (``goal_in_view_step``: the segmenter did not recognise it) or never did."""
     held = [r for r in recs if r.get("goal_in_memory") is True]
     missing = [r for r in recs if r.get("goal_in_memory") is False]
     reasons = Counter(r.get("memory_goal_reason") for r in held)
     sources: Counter = Counter()
     for r in missing:
         sources.update(r.get("frontier_sources") or {})
+    # scoring only: the goal-not-in-memory episodes whose house's earlier episodes had had a
+    # true goal instance in view (perception missed it) and those whose had not (it was
+    # never near); the Exploration failures whose goal came into view unrecognised
+    missed = [r for r in missing if r.get("goal_seen_before") is True]
+    unseen = [r for r in missing if r.get("goal_seen_before") is False]
+    explored = [r for r in recs if r.get("failure") == "Exploration" and "goal_in_view_step" in r]
     return {"goal_in_memory": _part(held), "goal_not_in_memory": _part(missing),
+            "goal_not_in_memory_seen_before": _part(missed),
+            "goal_not_in_memory_never_seen": _part(unseen),
+            "exploration_failures_goal_in_view": {
+                "episodes": len(explored),
+                "in_view": sum(r["goal_in_view_step"] is not None for r in explored)},
             "memory_goal_headed": sum(r.get("memory_goal_step") is not None for r in held),
             "memory_goal_reasons": {k: reasons[k] for k in MEMORY_GOAL_REASONS},
             # where the goal-not-in-memory episodes explored: beside unseen space, space seen

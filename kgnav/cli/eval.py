@@ -402,6 +402,16 @@ def _print_where_lost(console: Console, summary: dict) -> None:
             t2.add_row(name, str(s["memory_goal_headed"]),
                        *(str(s["memory_goal_reasons"][r]) for r in MEMORY_GOAL_REASONS))
         console.print(t2)
+        for name, s in lost.items():
+            a, b = s.get("goal_not_in_memory_seen_before"), s.get("goal_not_in_memory_never_seen")
+            e = s.get("exploration_failures_goal_in_view")
+            if a is None or b is None or e is None:
+                continue  # (a summary written before these were scored)
+            console.print(
+                f"{name}: goal not in memory, though an earlier episode of the house had it "
+                f"in view: {a['episodes']} (success {_f(a['success'], 3)}); never in view: "
+                f"{b['episodes']} (success {_f(b['success'], 3)}). Exploration failures "
+                f"whose goal came into view unrecognised: {e['in_view']} of {e['episodes']}")
     curves = {n: s for n, s in summary.items() if "success_by_episode_index" in s}
     if curves:
         t3 = Table("variant", "Success by episode index in a house (0: its first)",
