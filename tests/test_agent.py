@@ -328,6 +328,41 @@ def test_the_planner_reaches_a_frontier_the_policy_took_from_the_memorys_bare_ma
     assert not math.isfinite(FMMPlanner().plan(m, pose, goal, key="corridor").distance)
 
 
+def test_the_planner_and_the_policy_fall_back_in_one_order():
+    """passable: inflated, squeezed, (drop_prior) without the memory's walls, then the bare
+    map only when sealed in; the first that reaches the targets is the one returned."""
+    m = MapBuilder(Camera(), size=120).reset()
+    m.explored[30:91, 30:91] = 1
+    m.obstacle[30, 30:91] = m.obstacle[90, 30:91] = 1
+    m.obstacle[30:91, 30] = m.obstacle[30:91, 90] = 1
+    agent, crop = (60, 50), (20, 100, 20, 100)
+    planner = FMMPlanner()
+    same = lambda a, b: b is not None and np.array_equal(a, b)  # noqa: E731
+    inside = np.zeros((80, 80), bool)
+    inside[40, 55] = True  # (60, 75) on the map: in the room
+    assert same(planner.traversable(m, crop, agent), planner.passable(m, crop, agent, inside))
+    outside = np.zeros((80, 80), bool)
+    outside[40, 78] = True  # (60, 98): beyond the east wall
+    m.obstacle[55:65, 90] = 0  # a 0.5 m doorway: closed by inflation, open when squeezed
+    assert same(planner.traversable(m, crop, agent, squeeze=True),
+                planner.passable(m, crop, agent, outside))
+    m.obstacle[55:65, 90] = 1  # closed: sealed in by its own map, only the bare map is left
+    m.obstacle[59:61, 90] = 0  # a 0.1 m gap the agent does not fit
+    assert planner.sealed(m, crop, agent)
+    assert same(planner.traversable(m, crop, agent, bare=True),
+                planner.passable(m, crop, agent, outside))
+    m.explored[60, 70] = 0  # a cell left to explore: not sealed, so not the bare map
+    assert planner.passable(m, crop, agent, outside) is None
+    m.explored[60, 70] = 1
+    m.obstacle[50:70, 90] = 0  # a 1 m doorway, closed by a memory's wall only
+    m.prior_obstacle = np.zeros_like(m.obstacle)
+    m.prior_obstacle[45:75, 91] = 1
+    m.prior_explored = m.explored.copy()
+    assert planner.passable(m, crop, agent, outside, enter_targets=True) is None
+    assert same(planner.traversable(m, crop, agent, prior=False),
+                planner.passable(m, crop, agent, outside, drop_prior=True, enter_targets=True))
+
+
 def test_a_goal_behind_a_gap_the_agent_does_not_fit_stays_out_of_reach():
     """Not walled in (space left to explore), only facing a goal behind a 10 cm gap: the bare
     map would lead the agent to push at the gap, so the planner says unreachable (and the
@@ -460,6 +495,51 @@ def test_with_a_memory_that_saw_everything_the_policy_searches_where_it_looked_o
     m.prior_explored = m.prior_obstacle = m.prior_searched = None  # no memory at all
     pol.select(m, (0.0, 0.0, 0.0), "chair", FMMPlanner())
     assert pol.source_ == "unobserved"
+
+
+def test_the_semantic_policy_looks_near_what_the_memory_remembers():
+    """Two frontiers as far from the agent, one east, one west; the memory believes a TV
+    stands near the east one, and TVs go with sofas: with ``remembered`` the policy heads
+    east for a sofa; without, or for a class the TV tells nothing of, west (ties: lowest
+    index)."""
+    from kgnav.agent.policy import SemanticFrontierPolicy
+
+    def world():
+        m = MapBuilder(Camera(), size=100).reset()
+        m.explored[39:62, 20:81] = 1  # a 1 m corridor open at both ends, its walls seen
+        m.obstacle[39, 20:81] = m.obstacle[61, 20:81] = 1
+        m.prior_objects = (("tv_monitor", 1.4, 0.0, 0.9),)
+        return m
+
+    co = {"sofa": {"tv_monitor": 0.8}}
+    for remembered, goal, east in ((True, "sofa", True), (False, "sofa", False),
+                                   (True, "bed", False)):
+        pol = SemanticFrontierPolicy(remembered=remembered)
+        pol.cooccurrence_ = co
+        cell = pol.select(world(), (0.0, 0.0, 0.0), goal, FMMPlanner())
+        assert cell is not None and (world().to_xy(*cell)[0] > 0) is east, (remembered, goal)
+    m = world()
+    m.forget_prior()
+    assert m.prior_objects == ()
+
+
+def test_remembered_objects_come_in_the_episode_frame_if_believed():
+    from kgnav import AbstractModel, Detection
+    from kgnav.agent.loop import remembered_objects
+    from kgnav.memory.evidence import DEFAULT_BELIEF
+
+    m = AbstractModel(2, model_id="e", scan=ScanGeometry(90.0, 4, 5.0))
+    far = np.full(4, 5.0)
+    for k in range(3):  # a chair seen three times at (2, 0); a plant once, then missed twice
+        dets = [Detection("chair", (2.0, 0.0, 0.4))]
+        if k == 0:
+            dets.append(Detection("plant", (1.0, 0.5, 0.4)))
+        m.add_state([1.0, float(k)], (0.0, 0.0, 0.0), dets, ranges=far)
+    # the episode frame is the model's moved 1 m along x and turned 90 degrees
+    out = remembered_objects(m, (1.0, 0.0, math.pi / 2), DEFAULT_BELIEF)
+    assert [o[0] for o in out] == ["chair"]
+    cls, x, y, b = out[0]
+    assert (x, y) == pytest.approx((0.0, -1.0)) and b >= 0.5
 
 
 def test_policy_registry_and_cooccurrence(tiny):

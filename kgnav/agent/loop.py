@@ -399,6 +399,9 @@ class ObjectNavAgent:
             geo = self.memory.geometry(r.model_id)
             if geo is not None:
                 self.map_builder.seed(geo.grid, r.transform)
+        if getattr(self.policy, "remembered", False):  # a policy that searches near them
+            self.map_.prior_objects = remembered_objects(stored, r.transform,
+                                                         self.config.goals.belief)
 
     def _undo(self) -> None:
         """Back to the episode's own model: the relocation was refuted."""
@@ -858,6 +861,22 @@ def _vocabulary_map(segmenter, classes: tuple[str, ...]) -> np.ndarray | None:
             f"{', ...' if len(classes) > 6 else ''}); it knows {len(own)}: {shown}")
     return np.array([0] + [classes.index(c) + 1 if c in classes else 0 for c in own],
                     np.int32)
+
+
+def remembered_objects(model, transform, belief_model, min_belief: float = 0.5) -> tuple:
+    """The objects of a stored ``model`` believed real (belief at least ``min_belief``), as
+    ``(class, x, y, belief)`` in the episode frame; ``transform`` maps the episode frame into
+    the model's (a relocation's)."""
+    inv = se2.inverse(transform)
+    ev = object_evidence(model, weak_below=belief_model.weak_below)
+    out = []
+    for o, e in sorted(ev.items()):
+        b = belief(e, belief_model)
+        if b >= min_belief:
+            d = model.graph.nodes[o]
+            x, y = se2.apply_to_point(inv, d["x"], d["y"])
+            out.append((d["cls"], x, y, b))
+    return tuple(out)
 
 
 def _relabel(seg: Segmentation, table: np.ndarray, classes: tuple[str, ...]) -> Segmentation:

@@ -67,6 +67,9 @@ class EpisodeMap:
     prior_explored: np.ndarray | None = None  # uint8 0/1: space a memory has seen
     searched: np.ndarray | None = None  # uint8 0/1: explored from within the search range
     prior_searched: np.ndarray | None = None  # uint8 0/1: ... by a memory
+    # (class, x, y, belief) in the episode frame: the objects a memory believes in, for a
+    # policy that looks for the goal near what it remembers (set by the agent loop)
+    prior_objects: tuple = ()
 
     def __post_init__(self):
         if self.origin is None:
@@ -129,6 +132,7 @@ class EpisodeMap:
 
     def forget_prior(self) -> None:
         """Drop what a memory said of the place (a relocation refuted)."""
+        self.prior_objects = ()
         if self.prior_obstacle is not None:
             self.prior_obstacle = self.prior_explored = self.prior_searched = None
             self.generation += 1

@@ -273,35 +273,57 @@ class FMMPlanner:
         return any(not trav[i - w0, j - w2] for i, j in path
                    if max(abs(i - agent[0]), abs(j - agent[1])) > self._PATCH)
 
-    def distances(self, m: EpisodeMap, crop, agent: tuple[int, int],
-                  targets: np.ndarray) -> np.ndarray:
-        """Fast Marching distances (cells) over ``crop`` to ``targets`` (crop-shaped); when
-        the agent cannot reach them, retried on the squeezed map, then without the
-        remembered obstacles: a memory's coarse walls guide the way but never rule a goal
-        out (a doorway its range profiles caught only at an angle looks closed); last, when
-        the agent is :meth:`sealed` in, with obstacles not inflated (``bare``): its own
-        when its own map seals it, its own and the memory's when the memory's does, as the
-        frontier policy does (every frontier it picks is one the planner can reach)."""
-        speed = self._speed(m, crop)
+    def passable(self, m: EpisodeMap, crop, agent: tuple[int, int], targets: np.ndarray, *,
+                 prior: bool = True, drop_prior: bool = False, enter_targets: bool = False
+                 ) -> np.ndarray | None:
+        """The first of the traversable maps over ``crop`` (:meth:`traversable`) from which
+        the agent reaches a cell of ``targets`` (crop-shaped), in the one order both the
+        planner and the frontier policy fall back in; None when none reaches one.
+
+        The order: obstacles inflated by the agent's radius, then squeezed (a doorway that
+        inflation closed); with ``drop_prior``, then inflated without the remembered
+        obstacles (a memory's coarse walls guide the way but never rule a goal out: a doorway
+        its range profiles caught only at an angle looks closed); last, when the agent is
+        :meth:`sealed` in, with obstacles not inflated (``bare``): its own when its own map
+        seals it, its own and the memory's when the memory's does. A planner and a policy
+        that fell back differently would disagree: the policy would pick a frontier the
+        planner refuses, and the agent would turn in place. ``prior``: with the remembered
+        obstacles to begin with; ``enter_targets``: the targets are passable themselves
+        (Fast Marching's zero set) rather than cells to reach (a march from the agent).
+        """
         here = (agent[0] - crop[0], agent[1] - crop[2])
-        tries = [{}, {"squeeze": True}]
-        if m.prior_obstacle is not None:
+
+        def reaches(trav: np.ndarray) -> bool:
+            return reachable(trav | targets if enter_targets else trav, here, targets)
+
+        remembered = prior and m.prior_obstacle is not None
+        tries = [{"prior": prior}, {"prior": prior, "squeeze": True}]
+        if drop_prior and remembered:
             tries.append({"prior": False})
         for kw in tries:
             trav = self.traversable(m, crop, agent, **kw)
-            if reachable(trav | targets, here, targets):  # else a march would end inf here
-                return fmm_distance(trav, targets, speed=speed)
-        if self.sealed(m, crop, agent, prior=False):
-            return fmm_distance(self.traversable(m, crop, agent, prior=False, bare=True),
-                                targets, speed=speed)
-        if m.prior_obstacle is not None and self.sealed(m, crop, agent):
-            # walled in as far as the memory knows: the space the agent's own map leaves
-            # open was seen by the memory, so nothing is left to explore there. The frontier
-            # policy then takes its frontiers from the bare obstacles, memory's included; a
-            # planner that refused the same map would leave the agent turning in place
-            return fmm_distance(self.traversable(m, crop, agent, bare=True), targets,
-                                speed=speed)
-        return np.full(targets.shape, np.inf)
+            if reaches(trav):
+                return trav
+        # walled in: by the agent's own map first when the memory may be dropped, then as
+        # far as the memory knows (the space its own map leaves open was seen by the memory,
+        # so nothing is left to explore there)
+        for p in ((False, True) if drop_prior and remembered
+                  else (False,) if drop_prior else (prior,)):
+            if self.sealed(m, crop, agent, prior=p):
+                trav = self.traversable(m, crop, agent, prior=p, bare=True)
+                if reaches(trav):
+                    return trav
+        return None
+
+    def distances(self, m: EpisodeMap, crop, agent: tuple[int, int],
+                  targets: np.ndarray) -> np.ndarray:
+        """Fast Marching distances (cells) over ``crop`` to ``targets`` (crop-shaped), on the
+        first map of :meth:`passable`'s order (remembered obstacles dropped before the bare
+        one) that reaches them; ``inf`` everywhere when none does."""
+        trav = self.passable(m, crop, agent, targets, drop_prior=True, enter_targets=True)
+        if trav is None:
+            return np.full(targets.shape, np.inf)
+        return fmm_distance(trav, targets, speed=self._speed(m, crop))
 
     def sealed(self, m: EpisodeMap, crop, agent: tuple[int, int], *, prior: bool = True
                ) -> bool:

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from kgnav.agent.mapping import EpisodeMap
-from kgnav.agent.planner import FMMPlanner, fmm_distance, reachable
+from kgnav.agent.planner import FMMPlanner, fmm_distance
 from kgnav.registry import Registry
 
 
@@ -163,19 +163,11 @@ class FrontierPolicy:
         src[agent[0] - i0, agent[1] - j0] = True
         sub = lab[i0:i1, j0:j1]
         front = sub > 0
-        here = (agent[0] - i0, agent[1] - j0)
-        # walled in by its own map: squeeze, and when even that seals it, the bare obstacles
-        # (a map from which no frontier is reachable would give no frontier a distance)
-        for kw in ({}, {"squeeze": True}):
-            trav = planner.traversable(m, crop, agent, prior=prior, **kw)
-            if reachable(trav, here, front):
-                break
-        else:
-            if not planner.sealed(m, crop, agent, prior=prior):
-                return None
-            trav = planner.traversable(m, crop, agent, prior=prior, bare=True)
-            if not reachable(trav, here, front):
-                return None
+        # walled in by its own map: the planner's fallbacks, in the planner's order (a
+        # map from which no frontier is reachable would give no frontier a distance)
+        trav = planner.passable(m, crop, agent, front, prior=prior)
+        if trav is None:
+            return None
         # First a march that stops BAND m (and what a frontier's bonus can take off its
         # cost) from the agent: when the cheapest frontier inside costs less than any
         # frontier beyond could, it is the cheapest of all, and the march over the whole
@@ -217,12 +209,16 @@ class SemanticFrontierPolicy(FrontierPolicy):
 
     name = "semantic"
 
+    #: m: a remembered object counts as this big a patch of the semantic map
+    OBJECT_RADIUS = 0.3
+
     def __init__(self, size_weight: float = 0.01, min_distance: float = 1.0,
                  min_cells: int = 6, weight: float = 4.0, radius: float = 2.0,
-                 search_memory: bool = False):
+                 search_memory: bool = False, remembered: bool = False):
         super().__init__(size_weight, min_distance, min_cells, search_memory)
         self.weight = float(weight)
         self.radius = float(radius)
+        self.remembered = bool(remembered)
         self.cooccurrence_: dict[str, dict[str, float]] = {}
 
     def fit(self, models) -> SemanticFrontierPolicy:
@@ -240,6 +236,13 @@ class SemanticFrontierPolicy(FrontierPolicy):
         for cls, p in related.items():
             if cls in m.classes:
                 ev += p * (m.semantic[m.classes.index(cls), i0:i1, j0:j1] > 0)
+        if self.remembered:  # what a relocated memory believes stands there, seen or not
+            r = max(1, int(self.OBJECT_RADIUS / m.resolution))
+            for cls, x, y, _b in m.prior_objects:
+                p = related.get(cls)
+                if p:
+                    i, j = m.to_cell(x, y)
+                    cv2.circle(ev, (j - j0, i - i0), r, float(p), -1)
         k = max(1, int(self.radius / m.resolution))
         # mean related evidence in a (2k+1)^2 window, scaled to "cells of evidence nearby"
         near = cv2.blur(ev, (2 * k + 1, 2 * k + 1)) * (2 * k + 1)
