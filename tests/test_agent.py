@@ -542,6 +542,30 @@ def test_remembered_objects_come_in_the_episode_frame_if_believed():
     assert (x, y) == pytest.approx((0.0, -1.0)) and b >= 0.5
 
 
+def test_exploring_as_if_the_memory_had_not_seen_its_space():
+    """The memory saw the west half: by default the policy explores beyond it (a frontier of
+    space nobody saw); with ``beyond_memory`` off (``AgentConfig.explore_beyond_memory``), a
+    frontier of the agent's own map, wherever the memory looked."""
+    def world():
+        m = MapBuilder(Camera(), size=100).reset()
+        m.explored[40:61, 44:61] = 1  # its own frontier nearest the agent lies west
+        m.prior_explored = np.zeros_like(m.explored)
+        m.prior_explored[:, :50] = 1
+        m.prior_obstacle = np.zeros_like(m.explored)
+        m.prior_searched = m.prior_explored.copy()
+        return m
+
+    on, off = FrontierPolicy(), FrontierPolicy(beyond_memory=False)
+    cell = on.select(world(), (0.0, 0.0, 0.0), "chair", FMMPlanner())
+    assert on.source_ == "unobserved" and frontiers(world())[0][cell] > 0
+    cell = off.select(world(), (0.0, 0.0, 0.0), "chair", FMMPlanner())
+    assert off.source_ == "episode" and frontiers(world(), prior=False)[0][cell] > 0
+    assert not frontiers(world())[0][cell]  # the memory had seen past it
+    agent = ObjectNavAgent(Camera(), make_segmenter("clean"), make_extractor("opencv-gist"),
+                           config=AgentConfig(explore_beyond_memory=False))
+    assert agent.policy.beyond_memory is False
+
+
 def test_policy_registry_and_cooccurrence(tiny):
     assert make_policy("semantic").name == "semantic"
     with pytest.raises(KgnavError, match="unknown global policy"):

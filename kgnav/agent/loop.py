@@ -101,6 +101,9 @@ class AgentConfig:
     goals: GoalConfig = field(default_factory=GoalConfig)
     relocation: RelocationConfig = field(default_factory=RelocationConfig)
     seed_map: bool = True  # after a relocation, plan with what the stored model saw
+    # ... and explore beyond it: the frontiers of space neither the agent nor the memory saw
+    # come first (False: the memory's seen space vouches for no absence; explore as without it)
+    explore_beyond_memory: bool = True
     unknown_speed: float = 0.5  # ... and count space neither it nor the agent saw this much
     # slower than known free space (1: no preference for the way the memory knows)
     prior_inflation: float | None = None  # m the remembered obstacles grow by for the
@@ -262,6 +265,8 @@ class ObjectNavAgent:
         self.policy = policy or FrontierPolicy()
         self.memory = memory
         self.config = config or AgentConfig()
+        if hasattr(self.policy, "beyond_memory"):
+            self.policy.beyond_memory = self.config.explore_beyond_memory
         for cls, _ in self.config.goals.remembered_floor:  # a typo would silently do nothing
             if cls not in self.classes:
                 raise UnknownClassError(cls, self.classes)

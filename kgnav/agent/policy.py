@@ -112,11 +112,12 @@ class FrontierPolicy:
     BAND = 6.0  # m: the first, narrow march's reach beyond what a bonus can take off (_select)
 
     def __init__(self, size_weight: float = 0.01, min_distance: float = 1.0,
-                 min_cells: int = 6, search_memory: bool = False):
+                 min_cells: int = 6, search_memory: bool = False, beyond_memory: bool = True):
         self.size_weight = float(size_weight)
         self.min_distance = float(min_distance)
         self.min_cells = int(min_cells)
         self.search_memory = bool(search_memory)
+        self.beyond_memory = bool(beyond_memory)
         self.source_: str | None = None
 
     def reset(self, seed: int) -> None:
@@ -139,6 +140,9 @@ class FrontierPolicy:
         if m.prior_explored is None:
             self.source_ = "unobserved"
             return self._select(m, pose, goal_class, planner, prior=True)
+        if not self.beyond_memory:  # the memory's seen space vouches for nothing: explore
+            self.source_ = "episode"  # as if it had not been seen
+            return self._select(m, pose, goal_class, planner, prior=False)
         cell = self._select(m, pose, goal_class, planner, prior=True,
                             searched=self.search_memory)
         if cell is not None:
