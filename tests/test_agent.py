@@ -314,7 +314,8 @@ def test_the_planner_reaches_a_frontier_the_policy_took_from_the_memorys_bare_ma
     m.prior_obstacle, m.prior_explored = prior, seen
     m.prior_searched = np.zeros_like(seen)
     pose = (*m.to_xy(80, 70), 0.0)
-    planner, policy = FMMPlanner(), FrontierPolicy()
+    # frontiers of unseen space, as when the deadlock happened (the memory searched nothing)
+    planner, policy = FMMPlanner(), FrontierPolicy(search_memory=False)
     crop = planner.window(m, (80, 70), seen > 0)
     assert not planner.sealed(m, crop, (80, 70), prior=False)  # the room's unseen part
     assert planner.sealed(m, crop, (80, 70))  # ... is no space to explore to the memory
@@ -484,8 +485,8 @@ def test_with_a_memory_that_saw_everything_the_policy_searches_where_it_looked_o
     assert pol.source_ == "unsearched"
     assert cell is not None and m.to_xy(*cell)[0] > 0.0 and m.searched_any()[cell]
     assert frontiers(m, searched=True)[0][cell] > 0
-    off = FrontierPolicy()  # the default: space nobody has seen, then the episode's own
-    assert not off.search_memory
+    off = FrontierPolicy(search_memory=False)  # space nobody has seen, then the episode's own
+    assert FrontierPolicy().search_memory  # the default
     cell = off.select(world(), (0.0, 0.0, 0.0), "chair", FMMPlanner())
     assert off.source_ == "episode" and cell is not None
     m = world()
@@ -562,8 +563,8 @@ def test_exploring_as_if_the_memory_had_not_seen_its_space():
     assert off.source_ == "episode" and frontiers(world(), prior=False)[0][cell] > 0
     assert not frontiers(world())[0][cell]  # the memory had seen past it
     agent = ObjectNavAgent(Camera(), make_segmenter("clean"), make_extractor("opencv-gist"),
-                           config=AgentConfig(explore_beyond_memory=False))
-    assert agent.policy.beyond_memory is False
+                           config=AgentConfig(explore_beyond_memory=False, search_memory=False))
+    assert agent.policy.beyond_memory is False and agent.policy.search_memory is False
 
 
 def test_policy_registry_and_cooccurrence(tiny):

@@ -104,6 +104,9 @@ class AgentConfig:
     # ... and explore beyond it: the frontiers of space neither the agent nor the memory saw
     # come first (False: the memory's seen space vouches for no absence; explore as without it)
     explore_beyond_memory: bool = True
+    # ... and among the space it saw, prefer what it saw only from afar (beyond 3 m, where a
+    # segmenter misses much) to the agent's own frontiers (kgnav.agent.policy.FrontierPolicy)
+    search_memory: bool = True
     unknown_speed: float = 0.5  # ... and count space neither it nor the agent saw this much
     # slower than known free space (1: no preference for the way the memory knows)
     prior_inflation: float | None = None  # m the remembered obstacles grow by for the
@@ -265,8 +268,11 @@ class ObjectNavAgent:
         self.policy = policy or FrontierPolicy()
         self.memory = memory
         self.config = config or AgentConfig()
+        # how a memory steers exploration is the agent's setting, whatever the policy's own
         if hasattr(self.policy, "beyond_memory"):
             self.policy.beyond_memory = self.config.explore_beyond_memory
+        if hasattr(self.policy, "search_memory"):
+            self.policy.search_memory = self.config.search_memory
         for cls, _ in self.config.goals.remembered_floor:  # a typo would silently do nothing
             if cls not in self.classes:
                 raise UnknownClassError(cls, self.classes)
