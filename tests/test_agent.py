@@ -486,7 +486,7 @@ def test_with_a_memory_that_saw_everything_the_policy_searches_where_it_looked_o
     assert cell is not None and m.to_xy(*cell)[0] > 0.0 and m.searched_any()[cell]
     assert frontiers(m, searched=True)[0][cell] > 0
     off = FrontierPolicy(search_memory=False)  # space nobody has seen, then the episode's own
-    assert FrontierPolicy().search_memory  # the default
+    assert not FrontierPolicy().search_memory  # the default
     cell = off.select(world(), (0.0, 0.0, 0.0), "chair", FMMPlanner())
     assert off.source_ == "episode" and cell is not None
     m = world()
@@ -563,8 +563,8 @@ def test_exploring_as_if_the_memory_had_not_seen_its_space():
     assert off.source_ == "episode" and frontiers(world(), prior=False)[0][cell] > 0
     assert not frontiers(world())[0][cell]  # the memory had seen past it
     agent = ObjectNavAgent(Camera(), make_segmenter("clean"), make_extractor("opencv-gist"),
-                           config=AgentConfig(explore_beyond_memory=False, search_memory=False))
-    assert agent.policy.beyond_memory is False and agent.policy.search_memory is False
+                           config=AgentConfig(explore_beyond_memory=False, search_memory=True))
+    assert agent.policy.beyond_memory is False and agent.policy.search_memory is True
 
 
 def test_policy_registry_and_cooccurrence(tiny):

@@ -105,8 +105,9 @@ class AgentConfig:
     # come first (False: the memory's seen space vouches for no absence; explore as without it)
     explore_beyond_memory: bool = True
     # ... and among the space it saw, prefer what it saw only from afar (beyond 3 m, where a
-    # segmenter misses much) to the agent's own frontiers (kgnav.agent.policy.FrontierPolicy)
-    search_memory: bool = True
+    # segmenter misses much) to the agent's own frontiers (kgnav.agent.policy.FrontierPolicy;
+    # off: calibration houses gained, val did not, docs/agent.md)
+    search_memory: bool = False
     unknown_speed: float = 0.5  # ... and count space neither it nor the agent saw this much
     # slower than known free space (1: no preference for the way the memory knows)
     prior_inflation: float | None = None  # m the remembered obstacles grow by for the

@@ -104,9 +104,10 @@ class FrontierPolicy:
     cluster's size (cells), ignoring cells closer than ``min_distance`` (they would be reached
     before the view changes). Deterministic: ties go to the lowest cell index.
     ``search_memory``: after a relocation, prefer the frontiers of space nobody has searched
-    from close range over those of space nobody has seen (on: it helped on houses the
-    segmenter never saw, docs/agent.md). ``beyond_memory`` off: explore the agent's own
-    frontiers as if the memory had seen nothing. An agent sets both from its
+    from close range over those of space nobody has seen (off: it helped on calibration
+    houses the segmenter never saw, not on ``val``, docs/agent.md). ``beyond_memory`` off:
+    explore the agent's own frontiers as if the memory had seen nothing. An agent sets both
+    from its
     :class:`~kgnav.agent.loop.AgentConfig`.
     """
 
@@ -114,7 +115,7 @@ class FrontierPolicy:
     BAND = 6.0  # m: the first, narrow march's reach beyond what a bonus can take off (_select)
 
     def __init__(self, size_weight: float = 0.01, min_distance: float = 1.0,
-                 min_cells: int = 6, search_memory: bool = True, beyond_memory: bool = True):
+                 min_cells: int = 6, search_memory: bool = False, beyond_memory: bool = True):
         self.size_weight = float(size_weight)
         self.min_distance = float(min_distance)
         self.min_cells = int(min_cells)
@@ -220,7 +221,7 @@ class SemanticFrontierPolicy(FrontierPolicy):
 
     def __init__(self, size_weight: float = 0.01, min_distance: float = 1.0,
                  min_cells: int = 6, weight: float = 4.0, radius: float = 2.0,
-                 search_memory: bool = True, remembered: bool = False):
+                 search_memory: bool = False, remembered: bool = False):
         super().__init__(size_weight, min_distance, min_cells, search_memory)
         self.weight = float(weight)
         self.radius = float(radius)
