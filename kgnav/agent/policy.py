@@ -107,8 +107,7 @@ class FrontierPolicy:
     from close range over those of space nobody has seen (off: it helped on calibration
     houses the segmenter never saw, not on ``val``, docs/agent.md). ``beyond_memory`` off:
     explore the agent's own frontiers as if the memory had seen nothing. An agent sets both
-    from its
-    :class:`~kgnav.agent.loop.AgentConfig`.
+    from its :class:`~kgnav.agent.loop.AgentConfig`.
     """
 
     name = "frontier"

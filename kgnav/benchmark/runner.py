@@ -418,13 +418,13 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
     # the house's own models as the episode starts: what it could relocate into
     house_models = (None if memory is None
                     else sum(_house_of(mid) == name for mid in memory.models))
-    seen = seen_instances(obs) if variant.learns else set()
     # scoring only: had the house's earlier episodes a true goal instance in view, and when
     # did this one first have one (what a segmenter should have recognised)
     goals = goal_instances(env, goal)
     before = _ROUND.get("seen", {}).get(name) if memory is not None else None
     watch = labels and goals is not None and not variant.oracle
-    in_view = 0 if watch and goals & seen_instances(obs) else None
+    seen = seen_instances(obs) if variant.learns or watch else set()
+    in_view = 0 if watch and goals & seen else None
     track = variant.learns or memory is not None
     path = [gt.world_pose()] if track else []  # true pose after each step
     if cfg.noise_spec.active:  # with drift, judge relocations by where the agent truly was
@@ -439,11 +439,11 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
         check_observation(obs, spec, labels)
         steps += 1
         done = term or trunc
-        now = seen_instances(obs) if variant.learns or watch else set()
-        if variant.learns:
+        if variant.learns or watch:
+            now = seen_instances(obs)
             seen |= now
-        if in_view is None and watch and now & goals:
-            in_view = steps
+            if in_view is None and watch and now & goals:
+                in_view = steps
         if track:
             path.append(gt.world_pose())
     if "success" not in info:
