@@ -860,3 +860,54 @@ def test_stalled_near_a_goal_it_saw_the_agent_stops_sooner(source, at, near_stal
     else:
         assert actions[-1] is None and agent._target is None  # given up
         assert agent.log_.rejected == ["o1"]
+
+
+def test_a_goal_seen_close_but_never_confidently_is_given_up_on_arrival(env):
+    """``confirm_score``: a close view confirms a goal only when the segmenter scored it that
+    high. One seen close only at lower scores gets the confirming turns and is then given
+    up, however much evidence it has (a persistent mistake has plenty); a higher-scoring
+    close view on the way confirms it. Off (0), any close view confirms, as before."""
+    from types import SimpleNamespace
+
+    from kgnav.agent.loop import Target
+
+    def det(score, distance=1.5, cls="chair"):
+        return SimpleNamespace(cls=cls, distance=distance, position=(2.0, 0.0, 0.4),
+                               radius=0.3, score=score)
+
+    def percept(*dets):
+        return SimpleNamespace(state=SimpleNamespace(pose=(0.5, 0.0, 0.0), detections=dets))
+
+    agent = _agent(env)  # off: any close view confirms
+    agent.reset("chair")
+    t = Target("episode", (2.0, 0.0), "o1")
+    agent._note_close(t, percept(det(0.62)))
+    assert t.seen_close and t.close_score == 0.62
+
+    agent = _agent(env, confirm_score=0.7)
+    agent.reset("chair")
+    t = agent._set_target(Target("episode", (2.0, 0.0), "o1"))
+    agent._note_close(t, percept(det(0.62), det(0.95, cls="sofa"), det(0.9, distance=3.0)))
+    assert not t.seen_close and t.close_score == 0.62  # another class, or too far: no count
+    actions = []
+    for step in range(20):
+        agent.step_ = step
+        actions.append(agent._confirm(t, percept()))
+        if actions[-1] is None:
+            break
+    assert len(actions) == agent.config.confirm_steps + 1 and actions[-1] is None
+    assert agent.log_.unconfirmed == [(8, "o1", 0.62)] and agent.log_.rejected == ["o1"]
+
+    t = Target("live", (2.0, 0.0), "o2")
+    agent._note_close(t, percept(det(0.65)))
+    agent._note_close(t, percept(det(0.81)))
+    assert t.seen_close and t.close_score == 0.81
+
+    t = agent._set_target(Target("memory", (2.0, 0.0), "o3", stage="point"))
+    for step in range(20):  # never seen close: the evidence decides, as before (here: none)
+        agent.step_ = 100 + step
+        if agent._confirm(t, percept()) is None:
+            break
+    assert agent.log_.rejected[-1] == "o3" and len(agent.log_.unconfirmed) == 1
+    with pytest.raises(ValueError, match="confirm_score"):
+        AgentConfig(confirm_score=1.5)

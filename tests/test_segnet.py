@@ -331,6 +331,36 @@ def test_train_segmenter_cli_budget_resume_and_reproducibility(tmp_path, cli):
     assert code == 1 and err.count("\n") == 1 and "another run" in err
 
 
+def test_train_segmenter_on_houses_of_your_own(tmp_path, cli):
+    """--scenes-dir trains and calibrates on a generated directory's houses: the weights
+    record it as their domain, a resumed run is the same run only with the same directory,
+    and a missing directory is one line, exit 1."""
+    from kgnav.nets.segnet.train import SegTrainConfig, training_houses
+    from kgnav.sim.scene_dir import generate_split
+
+    names = generate_split(tmp_path / "mine", count=3, seed=9101, rooms=(8, 8), episodes=1)
+    cfg = SegTrainConfig(n_houses=2, scenes_dir=str(tmp_path / "mine"))
+    assert [h.name for h in training_houses(cfg)] == sorted(names)[:2]
+    with pytest.raises(KgnavError, match="holds 3 houses, not the 4"):
+        training_houses(SegTrainConfig(n_houses=4, scenes_dir=str(tmp_path / "mine")))
+    small = ("--steps", "2", "--batch", "2", "--seed", "2", "--quiet")
+    w = tmp_path / "w.npz"
+    code, out, err = cli("train-segmenter", "--out", w, "--scenes-dir", tmp_path / "mine",
+                         "--scenes", "2", "--calibrate-frames", "3",
+                         "--checkpoint", tmp_path / "w.ckpt", *small)
+    assert code == 0, err
+    meta = load_weights(w).meta
+    assert meta["domain"]["scenes_dir"] == str(tmp_path / "mine")
+    assert meta["domain"]["scenes"] == 2
+    assert f"the houses of {tmp_path / 'mine'}" in meta["score_threshold_source"]
+    code, _, err = cli("train-segmenter", "--out", w, "--resume", "--checkpoint",
+                       tmp_path / "w.ckpt", "--calibrate-frames", "0", *small)
+    assert code == 1 and err.count("\n") == 1 and "scenes_dir=" in err  # the split's: another run
+    code, _, err = cli("train-segmenter", "--out", tmp_path / "x.npz", "--scenes-dir",
+                       tmp_path / "none", *small)
+    assert code == 1 and err.count("\n") == 1 and "not a directory" in err
+
+
 @pytest.mark.parametrize("args", [("--steps", "0"), ("--batch", "1"), ("--threads", "0"),
                                   ("--resume",), ("--device", "tpu")])
 def test_train_segmenter_bad_arguments_exit_2_one_line(tmp_path, cli, args):
@@ -352,6 +382,30 @@ def test_segmenter_bench_cli(tmp_path, cli):
     assert "mean IoU" in out
     code, _, err = cli("segmenter-bench", "--out", tmp_path / "c", "--segmenters", "learned,x")
     assert code == 2 and "unknown segmenter 'x'" in err and err.count("\n") == 1
+
+
+def test_segmenter_bench_on_houses_of_your_own(tmp_path, cli):
+    """--scenes-dir renders a generated directory's houses (none of a split's): the frames
+    are those houses' and the report names the directory; a missing directory is one line,
+    exit 1; another environment with it, a usage error."""
+    from kgnav.sim.scene_dir import generate_split
+
+    names = generate_split(tmp_path / "mine", count=2, seed=9100, rooms=(8, 8), episodes=2)
+    code, out, err = cli("segmenter-bench", "--scenes-dir", tmp_path / "mine", "--out",
+                         tmp_path / "b", "--frames", "4", "--segmenters", "learned,clean",
+                         "--quiet")
+    assert code == 0, err
+    report = json.loads((tmp_path / "b" / "segmenter_bench.json").read_text())
+    assert report["split"] is None and report["scenes_dir"] == str(tmp_path / "mine")
+    assert report["houses"] == sorted(names) and report["frames"] == 4
+    assert report["segmenters"]["clean"]["precision"] == 1.0
+    assert f"the houses of {tmp_path / 'mine'}" in out
+    code, _, err = cli("segmenter-bench", "--scenes-dir", tmp_path / "none", "--out",
+                       tmp_path / "c")
+    assert code == 1 and err.count("\n") == 1 and "not a directory" in err
+    code, _, err = cli("segmenter-bench", "--scenes-dir", tmp_path / "mine", "--env", "miniworld",
+                       "--out", tmp_path / "c")
+    assert code == 2 and err.count("\n") == 1 and "--scenes-dir" in err
 
 
 def test_segments_under_the_threshold_come_back_apart_when_asked():

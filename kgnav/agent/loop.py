@@ -114,6 +114,11 @@ class AgentConfig:
     # agent's centre (None: as much as its own; kgnav.agent.planner.FMMPlanner)
     confirm_distance: float = 2.5  # see an object this close before stopping at it (0: off)
     confirm_steps: int = 8  # turns spent looking for it on arrival before giving it up
+    # ... and a close view confirms only when the segmenter scored it at least this; an object
+    # seen close but never this confidently is given up after those turns, whatever the
+    # evidence: a segmenter's persistent mistake (a cabinet read as a sofa) recurs from every
+    # side, with views and belief to match, but is seldom scored high up close (0: any)
+    confirm_score: float = 0.0
     map_size: int = 480  # starting side in cells; the map grows
     look_around: bool = True  # turn a full circle before the first move (turns cost no path
     # length); with a memory, the turn ends once a relocation is accepted
@@ -138,6 +143,8 @@ class AgentConfig:
         if self.prior_inflation is not None and not 0 <= self.prior_inflation < math.inf:
             raise ValueError(f"prior_inflation must be None or a finite length >= 0 m, "
                              f"got {self.prior_inflation}")
+        if not 0 <= self.confirm_score <= 1:
+            raise ValueError(f"confirm_score must be in [0, 1], got {self.confirm_score}")
         if self.detour_ratio < 0 or 0 < self.detour_ratio < 1:
             raise ValueError(f"detour_ratio must be 0 (off) or at least 1, "
                              f"got {self.detour_ratio}")
@@ -177,6 +184,7 @@ class Target:
     stage: str = "area"  # soft strategy: the area, look around; the point; "commit": stop there
     scan_left: int | None = None
     seen_close: bool = False  # seen from within confirm_distance while heading for it
+    close_score: float = 0.0  # the best score of those close views (confirm_score)
     detours: int = 0  # times the way to it grew while already a detour (detour_ratio)
 
     @property
@@ -227,6 +235,8 @@ class EpisodeLog:
     # where the policy found them (FRONTIER_SOURCES; "policy": a policy that does not say)
     detour_drops: list[tuple[int, str | None]] = field(default_factory=list)  # (step, object)
     # given up because the way round kept growing (AgentConfig.detour_ratio)
+    unconfirmed: list[tuple[int, str | None, float]] = field(default_factory=list)  # (step,
+    # object, best close score): given up on arrival, seen close but never confidently
 
 
 class ObjectNavAgent:
@@ -524,8 +534,9 @@ class ObjectNavAgent:
         for d in p.state.detections:
             if (d.cls == self.goal and d.distance <= limit
                     and math.dist(d.position[:2], target.point) <= 1.0 + d.radius):
-                target.seen_close = True
-                return
+                target.close_score = max(target.close_score, float(d.score))
+        target.seen_close = (target.close_score > 0
+                             and target.close_score >= self.config.confirm_score)
 
     def _approach(self, target: Target, plan: Plan, p: Percept) -> str | None:
         if plan.reached:
@@ -578,6 +589,10 @@ class ObjectNavAgent:
             target.scan_left = self.config.confirm_steps
         target.scan_left -= 1
         if target.scan_left < 0:
+            if target.close_score > 0:  # seen close, never confidently: a persistent mistake
+                self.log_.unconfirmed.append((self.step_, target.object_id,
+                                              round(target.close_score, 3)))
+                return self._drop(target)
             if self._still_believed(target.object_id):
                 self.log_.stop_reason = f"reached {target.source} goal, still believed"
                 return "stop"

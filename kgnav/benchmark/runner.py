@@ -499,6 +499,8 @@ def run_episode(cfg: EvalConfig, variant: Variant, scene: int, episode: int, rou
         record["frontier_sources"] = dict(agent.log_.frontier_sources)
     if not variant.oracle and agent.log_.detour_drops:  # (step, object) given up as detours
         record["detour_drops"] = [list(d) for d in agent.log_.detour_drops]
+    if not variant.oracle and agent.log_.unconfirmed:  # (step, object, best close score)
+        record["unconfirmed"] = [list(u) for u in agent.log_.unconfirmed]
     if not variant.oracle and agent.log_.undone:
         record["undone"] = [_relocation_fields(gt, u) for u in agent.log_.undone]
     if reloc is not None:

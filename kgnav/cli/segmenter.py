@@ -54,10 +54,14 @@ def _walk(env_name: str, split: str, scenes: int | None, walk_steps: int, seed: 
 @click.option("--split", default=None,
               help="Scenes to train and calibrate on [default: train; for kgnav one of "
                    f"{', '.join(s for s in SPLITS if s.startswith('train'))}].")
+@click.option("--scenes-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Train and calibrate on houses of your own instead of --split: a "
+                   "directory written by 'kgnav scenes generate' (--scenes N: its first N).")
 @env_options
 @training_options(threads_default=1)
 def train_segmenter(out: Path, seed: int, steps: int, batch: int, calibrate_frames: int,
-                    split: str | None, env_name: str, scenes: int | None, walk_steps: int,
+                    split: str | None, scenes_dir: Path | None, env_name: str,
+                    scenes: int | None, walk_steps: int,
                     time_budget: float | None, resume: bool, checkpoint: Path | None,
                     checkpoint_every: int, device: str, threads: int, quiet: bool) -> None:
     """Train the RGB-D segmenter on frames of the train houses; write weights with metadata.
@@ -77,11 +81,21 @@ def train_segmenter(out: Path, seed: int, steps: int, batch: int, calibrate_fram
     if kgnav_env and split not in trains:
         raise click.BadParameter(f"{split!r} is not one of {', '.join(trains)}",
                                  param_hint="--split")
+    houses = None
+    if scenes_dir is not None:
+        if not kgnav_env:
+            raise click.BadParameter("houses of your own are kgnav's; another environment's "
+                                     "scenes are named by --split", param_hint="--scenes-dir")
+        from kgnav.sim.scene_dir import SceneDir
+
+        sd = SceneDir(scenes_dir)  # a missing or empty directory: one line, exit 1
+        houses = min(scenes or len(sd), len(sd))
     ckpt, dev = prepare(out, checkpoint, resume, device, threads)
     if kgnav_env:
         sampler = None
         cfg = SegTrainConfig(seed=seed, steps=steps, batch=batch, split=split,
-                             n_houses=scenes or _D.n_houses)
+                             n_houses=houses or scenes or _D.n_houses,
+                             scenes_dir=None if scenes_dir is None else str(scenes_dir))
     else:
         sampler = _walk(env_name, split, scenes, walk_steps, seed,
                         f"walking {env_name} {split}", quiet)
@@ -92,22 +106,25 @@ def train_segmenter(out: Path, seed: int, steps: int, batch: int, calibrate_fram
     run_training(trainer, ckpt, resume, "train-segmenter", time_budget, checkpoint_every, quiet)
     weights = trainer.export()
     if calibrate_frames:
-        _calibrate(weights, env_name, split, scenes, calibrate_frames, dev, quiet)
+        _calibrate(weights, env_name, split, scenes, calibrate_frames, dev, quiet,
+                   houses=None if scenes_dir is None else (scenes_dir, cfg.n_houses))
     weights.save(out)
     click.echo(f"{finished(trainer)}, {threads} thread(s) on {dev}); score threshold "
                f"{weights.score_threshold:.2f}; weights -> {out}; checkpoint {ckpt}")
     if not trainer.done:
-        more = "" if kgnav_env else (f" --env {env_name} --walk-steps {walk_steps}"
-                                     f" --scenes {len(sampler)}")
+        more = ((f" --scenes-dir {scenes_dir} --scenes {cfg.n_houses}" if scenes_dir else "")
+                if kgnav_env else (f" --env {env_name} --walk-steps {walk_steps}"
+                                   f" --scenes {len(sampler)}"))
         click.echo(f"continue with: kgnav train-segmenter --resume --out {out} --checkpoint "
                    f"{ckpt} --seed {seed} --steps {steps} --batch {batch} --threads {threads} "
                    f"--calibrate-frames {calibrate_frames} --split {split}{more}", err=True)
 
 
 def _calibrate(weights, env_name: str, split: str, scenes: int | None, n: int, dev: str,
-               quiet: bool) -> None:
+               quiet: bool, houses: tuple[Path, int] | None = None) -> None:
     """Store in ``weights`` the segment-score threshold with the best F1 on ``n`` frames of
-    the training scenes (seed :data:`CALIBRATION_SEED`, not the training frames)."""
+    the training scenes (seed :data:`CALIBRATION_SEED`, not the training frames); ``houses``:
+    (a scenes directory, how many of its houses) trained on instead of the split's."""
     import math
 
     from tqdm import tqdm
@@ -118,9 +135,16 @@ def _calibrate(weights, env_name: str, split: str, scenes: int | None, n: int, d
     if env_name == KGNAV:
         with tqdm(total=n, desc="calibrating on train frames", unit="frame",
                   disable=quiet, dynamic_ncols=True, mininterval=1.0) as bar:
-            frames = render_frames(split, n, seed=CALIBRATION_SEED,
+            if houses is None:
+                source, where = split, f"the {split} houses"
+            else:
+                from kgnav.sim.scene_dir import SceneDir
+
+                sd = SceneDir(houses[0])
+                source = [sd.scene(k) for k in range(houses[1])]
+                where = f"the houses of {houses[0]}"
+            frames = render_frames(source, n, seed=CALIBRATION_SEED,
                                    progress=lambda k: bar.update(k - bar.n))
-        where = f"the {split} houses"
     else:
         # twice as many views as frames drawn, so that the class-balanced draw has a choice
         views = _walk(env_name, split, scenes, max(10, math.ceil(2 * n / (scenes or ENV_SCENES))),
@@ -151,6 +175,10 @@ def _parse_segmenters(ctx, param, value: str) -> list[str]:
 @click.option("--split", default="val", show_default=True,
               help=f"Houses to render (val: never seen in training); for kgnav one of "
                    f"{', '.join(SPLITS)}, another environment's own names otherwise.")
+@click.option("--scenes-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Render your own houses instead of --split: a directory written by "
+                   "'kgnav scenes generate' (houses no split and no training used are where "
+                   "a segmenter is judged fairly).")
 @click.option("--out", "out_dir", required=True,
               type=click.Path(file_okay=False, path_type=Path),
               help="Directory for segmenter_bench.json and confusion.png.")
@@ -168,7 +196,8 @@ def _parse_segmenters(ctx, param, value: str) -> list[str]:
               type=click.FloatRange(0, 1), help="Share of frames aimed at an object.")
 @env_options
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def segmenter_bench(split: str, out_dir: Path, n_frames: int, segmenters: list[str],
+def segmenter_bench(split: str, scenes_dir: Path | None, out_dir: Path, n_frames: int,
+                    segmenters: list[str],
                     weights: Path | None, seed: int, object_share: float, env_name: str,
                     scenes: int | None, walk_steps: int, quiet: bool) -> None:
     """IoU, instance precision/recall by distance and size, false positives, confusions and
@@ -190,9 +219,18 @@ def segmenter_bench(split: str, out_dir: Path, n_frames: int, segmenters: list[s
     from kgnav.nets.segnet.bench import bench, plot_confusion, render_frames, walked_frames
 
     kgnav_env = env_name == KGNAV
-    if kgnav_env and split not in SPLITS:
+    if scenes_dir is not None and not kgnav_env:
+        raise click.BadParameter("houses of your own are kgnav's; another environment's scenes "
+                                 "are named by --split", param_hint="--scenes-dir")
+    if kgnav_env and scenes_dir is None and split not in SPLITS:
         raise click.BadParameter(f"{split!r} is not one of {', '.join(SPLITS)}",
                                  param_hint="--split")
+    houses = None
+    if scenes_dir is not None:
+        from kgnav.sim.scene_dir import SceneDir
+
+        sd = SceneDir(scenes_dir)  # a missing or empty directory: one line, exit 1
+        houses = [sd.scene(k) for k in range(min(scenes or len(sd), len(sd)))]
     if out_dir.exists() and not out_dir.is_dir():
         raise click.BadParameter(f"{out_dir} is not a directory", param_hint="--out")
     # the segmenters first: a bad name is a usage error before any frame is rendered
@@ -216,7 +254,7 @@ def segmenter_bench(split: str, out_dir: Path, n_frames: int, segmenters: list[s
     if kgnav_env:
         with tqdm(total=n_frames, desc=f"rendering {split} frames", unit="frame",
                   disable=quiet, dynamic_ncols=True, mininterval=1.0) as bar:
-            frames = render_frames(split, n_frames, seed, object_share,
+            frames = render_frames(houses or split, n_frames, seed, object_share,
                                    progress=lambda k: bar.update(k - bar.n))
     else:
         views = _walk(env_name, split, scenes, walk_steps, seed, f"walking {env_name} {split}",
@@ -230,8 +268,10 @@ def segmenter_bench(split: str, out_dir: Path, n_frames: int, segmenters: list[s
 
         scorers = bench(segs, frames, progress=progress, classes=classes)
     results = {label: {"name": seg.name, **scorers[label].report()} for label, seg in segs}
+    where = domain(env_name, split) if houses is None else f"the houses of {scenes_dir}"
     report = {"format": "kgnav-segmenter-bench", "version": 1, "env": env_name,
-              "classes": list(classes), "split": split, "seed": seed,
+              "classes": list(classes), "split": None if houses else split,
+              "scenes_dir": None if scenes_dir is None else str(scenes_dir), "seed": seed,
               "frames": n_frames, "object_share": object_share,
               "houses": sorted(set(frames.scenes)), "min_pixels": 20, "segmenters": results}
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -239,10 +279,10 @@ def segmenter_bench(split: str, out_dir: Path, n_frames: int, segmenters: list[s
         json.dump(report, fh, indent=1)
     plot_confusion({label: scorers[label].conf for label in list(scorers)[:2]},
                    out_dir / "confusion.png",
-                   title=f"pixel confusion on {domain(env_name, split)}: {n_frames} frames, "
+                   title=f"pixel confusion on {where}: {n_frames} frames, "
                          f"seed {seed}", classes=classes)
     con = wide_console(soft_wrap=True)
-    con.print(bench_table(results, f"segmenters on {domain(env_name, split)}: {n_frames} "
+    con.print(bench_table(results, f"segmenters on {where}: {n_frames} "
                                    f"frames, seed {seed}"))
     for label, r in results.items():
         pairs = ", ".join(f"{t}->{p} {n}" for t, p, n in r["confusion_pairs"][:8]) or "none"

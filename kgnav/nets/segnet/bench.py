@@ -66,14 +66,16 @@ class Frames:
         return len(self.rgb)
 
 
-def render_frames(split: str, n: int, seed: int = 1, object_share: float = 0.5,
+def render_frames(split: str | Sequence, n: int, seed: int = 1, object_share: float = 0.5,
                   progress: Callable[[int], None] | None = None) -> Frames:
-    """``n`` frames of the houses of ``split``, in turn: ``object_share`` of them aimed at an
-    object (class-balanced), the rest from random poses; seeded."""
+    """``n`` frames of the houses of ``split`` (a split's name, or the scenes themselves:
+    houses of your own, e.g. :class:`~kgnav.sim.scene_dir.SceneDir`'s), in turn:
+    ``object_share`` of them aimed at an object (class-balanced), the rest from random poses;
+    seeded."""
     from kgnav.nets.segnet.data import LabelledViews
     from kgnav.sim.episodes import load_split
 
-    views = LabelledViews(load_split(split))
+    views = LabelledViews(load_split(split) if isinstance(split, str) else list(split))
     rng = np.random.default_rng([seed, 0x5E6B])
     out = [], [], [], [], []
     for k in range(n):

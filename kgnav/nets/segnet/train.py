@@ -58,12 +58,17 @@ class SegTrainConfig(TrainingConfig):
     env: str = KGNAV  # whose frames (kgnav.envs); recorded as the weights' domain
     classes: tuple[str, ...] = OBJECT_CLASSES  # the vocabulary it labels: the environment's
     walk_steps: int = 0  # views walked per scene of another environment (kgnav: none)
+    scenes_dir: str | None = None  # kgnav houses of your own instead of the split's (a
+    # `kgnav scenes generate` directory, its first n_houses)
 
     def __post_init__(self):
         if self.steps < 0 or self.batch < 2 or self.n_houses < 1:
             raise ValueError("steps must be >= 0, batch >= 2 and n_houses >= 1")
         if not self.classes or len(set(self.classes)) != len(self.classes):
             raise ValueError("classes must be distinct names, at least one")
+        if self.scenes_dir is not None and self.env != KGNAV:
+            raise ValueError("houses of your own (scenes_dir) are kgnav's, not another "
+                             "environment's")
         if self.env != KGNAV and self.walk_steps < 1:
             raise ValueError("another environment's frames are walked: walk_steps must be >= 1")
 
@@ -113,10 +118,7 @@ class SegTrainer(SeededTrainer):
         if self._sampler is None:
             c = self.config
             if c.env == KGNAV:
-                from kgnav.sim.episodes import load_scene_of
-
-                self._sampler = LabelledViews([load_scene_of(c.split, k)
-                                               for k in range(c.n_houses)])
+                self._sampler = LabelledViews(training_houses(c))
             else:
                 self._sampler = env_views(c.env, c.split, c.n_houses, c.walk_steps, c.seed)
                 if self._sampler.classes != tuple(c.classes):
@@ -154,8 +156,25 @@ class SegTrainer(SeededTrainer):
         c = self.config
         meta = {"classes": list(c.classes), "train": self.train_meta(curve_every=100),
                 "domain": {"env": c.env, "train_split": c.split, "scenes": c.n_houses,
+                           **({"scenes_dir": c.scenes_dir} if c.scenes_dir else {}),
                            "walk_steps": c.walk_steps or None}}
         return SegmenterWeights(c.arch, params, meta)
+
+
+def training_houses(c: SegTrainConfig) -> list:
+    """The kgnav houses a run trains on: the first ``n_houses`` of its split, or of its
+    ``scenes_dir`` (:class:`~kgnav.errors.KgnavError` when that has fewer)."""
+    if c.scenes_dir is None:
+        from kgnav.sim.episodes import load_scene_of
+
+        return [load_scene_of(c.split, k) for k in range(c.n_houses)]
+    from kgnav.sim.scene_dir import SceneDir
+
+    sd = SceneDir(c.scenes_dir)
+    if len(sd) < c.n_houses:
+        raise KgnavError(f"{c.scenes_dir}: holds {len(sd)} houses, not the {c.n_houses} asked "
+                         f"for")
+    return [sd.scene(k) for k in range(c.n_houses)]
 
 
 def env_views(env: str, split: str, scenes: int, walk_steps: int, seed: int,
