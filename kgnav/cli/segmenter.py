@@ -133,7 +133,7 @@ def _calibrate(weights, env_name: str, split: str, scenes: int | None, n: int, d
     from kgnav.nets.segnet.segmenter import LearnedSegmenter
 
     if env_name == KGNAV:
-        with tqdm(total=n, desc="calibrating on train frames", unit="frame",
+        with tqdm(total=n, desc="calibrating on training-house frames", unit="frame",
                   disable=quiet, dynamic_ncols=True, mininterval=1.0) as bar:
             if houses is None:
                 source, where = split, f"the {split} houses"
