@@ -155,8 +155,9 @@ class SegTrainer(SeededTrainer):
         params = {k: v.cpu().numpy() for k, v in fold_batchnorm(self.net).items()}
         c = self.config
         meta = {"classes": list(c.classes), "train": self.train_meta(curve_every=100),
-                "domain": {"env": c.env, "train_split": c.split, "scenes": c.n_houses,
-                           **({"scenes_dir": c.scenes_dir} if c.scenes_dir else {}),
+                "domain": {"env": c.env, "scenes": c.n_houses,
+                           **({"scenes_dir": c.scenes_dir} if c.scenes_dir
+                              else {"train_split": c.split}),
                            "walk_steps": c.walk_steps or None}}
         return SegmenterWeights(c.arch, params, meta)
 
