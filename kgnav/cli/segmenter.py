@@ -23,7 +23,7 @@ from kgnav.cli._training import (
     walk_env,
 )
 from kgnav.cli.encoder import KGNAV, domain, env_options
-from kgnav.nets.segnet.train import SegTrainConfig
+from kgnav.nets.segnet.train import SegTrainConfig, training_houses
 from kgnav.sim.episodes import SPLITS
 
 _D = SegTrainConfig()
@@ -107,7 +107,7 @@ def train_segmenter(out: Path, seed: int, steps: int, batch: int, calibrate_fram
     weights = trainer.export()
     if calibrate_frames:
         _calibrate(weights, env_name, split, scenes, calibrate_frames, dev, quiet,
-                   houses=None if scenes_dir is None else (scenes_dir, cfg.n_houses))
+                   houses=None if scenes_dir is None else (scenes_dir, training_houses(cfg)))
     weights.save(out)
     click.echo(f"{finished(trainer)}, {threads} thread(s) on {dev}); score threshold "
                f"{weights.score_threshold:.2f}; weights -> {out}; checkpoint {ckpt}")
@@ -121,10 +121,10 @@ def train_segmenter(out: Path, seed: int, steps: int, batch: int, calibrate_fram
 
 
 def _calibrate(weights, env_name: str, split: str, scenes: int | None, n: int, dev: str,
-               quiet: bool, houses: tuple[Path, int] | None = None) -> None:
+               quiet: bool, houses: tuple[Path, list] | None = None) -> None:
     """Store in ``weights`` the segment-score threshold with the best F1 on ``n`` frames of
     the training scenes (seed :data:`CALIBRATION_SEED`, not the training frames); ``houses``:
-    (a scenes directory, how many of its houses) trained on instead of the split's."""
+    (a scenes directory, the houses of it trained on) instead of the split's."""
     import math
 
     from tqdm import tqdm
@@ -135,14 +135,8 @@ def _calibrate(weights, env_name: str, split: str, scenes: int | None, n: int, d
     if env_name == KGNAV:
         with tqdm(total=n, desc="calibrating on training-house frames", unit="frame",
                   disable=quiet, dynamic_ncols=True, mininterval=1.0) as bar:
-            if houses is None:
-                source, where = split, f"the {split} houses"
-            else:
-                from kgnav.sim.scene_dir import SceneDir
-
-                sd = SceneDir(houses[0])
-                source = [sd.scene(k) for k in range(houses[1])]
-                where = f"the houses of {houses[0]}"
+            source, where = ((split, f"the {split} houses") if houses is None
+                             else (houses[1], f"the houses of {houses[0]}"))
             frames = render_frames(source, n, seed=CALIBRATION_SEED,
                                    progress=lambda k: bar.update(k - bar.n))
     else:
@@ -230,7 +224,7 @@ def segmenter_bench(split: str, scenes_dir: Path | None, out_dir: Path, n_frames
         from kgnav.sim.scene_dir import SceneDir
 
         sd = SceneDir(scenes_dir)  # a missing or empty directory: one line, exit 1
-        houses = [sd.scene(k) for k in range(min(scenes or len(sd), len(sd)))]
+        houses = sd.scenes(min(scenes or len(sd), len(sd)))
     if out_dir.exists() and not out_dir.is_dir():
         raise click.BadParameter(f"{out_dir} is not a directory", param_hint="--out")
     # the segmenters first: a bad name is a usage error before any frame is rendered
@@ -252,7 +246,8 @@ def segmenter_bench(split: str, scenes_dir: Path | None, out_dir: Path, n_frames
             raise
     set_threads(1)
     if kgnav_env:
-        with tqdm(total=n_frames, desc=f"rendering {split} frames", unit="frame",
+        with tqdm(total=n_frames, desc=f"rendering {split if houses is None else scenes_dir} "
+                                       f"frames", unit="frame",
                   disable=quiet, dynamic_ncols=True, mininterval=1.0) as bar:
             frames = render_frames(houses or split, n_frames, seed, object_share,
                                    progress=lambda k: bar.update(k - bar.n))

@@ -72,6 +72,15 @@ class SceneDir:
             self._scenes[k] = s
         return self._scenes[k]
 
+    def scenes(self, n: int | None = None) -> list[Scene]:
+        """The first ``n`` houses (all by default); :class:`SceneFileError` when it holds
+        fewer."""
+        if n is None:
+            n = len(self)
+        if n > len(self):
+            raise SceneFileError(self.path, f"holds {len(self)} houses, not the {n} asked for")
+        return [self.scene(k) for k in range(n)]
+
     def episodes(self, k: int, n: int | None = None) -> list[Episode]:
         """The first ``n`` episodes of house ``k`` (all by default)."""
         path = self.episodes_path(k)

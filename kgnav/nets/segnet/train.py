@@ -164,18 +164,14 @@ class SegTrainer(SeededTrainer):
 
 def training_houses(c: SegTrainConfig) -> list:
     """The kgnav houses a run trains on: the first ``n_houses`` of its split, or of its
-    ``scenes_dir`` (:class:`~kgnav.errors.KgnavError` when that has fewer)."""
+    ``scenes_dir`` (:class:`~kgnav.errors.SceneFileError` when that has fewer)."""
     if c.scenes_dir is None:
         from kgnav.sim.episodes import load_scene_of
 
         return [load_scene_of(c.split, k) for k in range(c.n_houses)]
     from kgnav.sim.scene_dir import SceneDir
 
-    sd = SceneDir(c.scenes_dir)
-    if len(sd) < c.n_houses:
-        raise KgnavError(f"{c.scenes_dir}: holds {len(sd)} houses, not the {c.n_houses} asked "
-                         f"for")
-    return [sd.scene(k) for k in range(c.n_houses)]
+    return SceneDir(c.scenes_dir).scenes(c.n_houses)
 
 
 def env_views(env: str, split: str, scenes: int, walk_steps: int, seed: int,
